@@ -1,0 +1,57 @@
+# canopen_master: one entry point. `make help` lists the targets.
+# Every simulation uses GHDL's LLVM back end (Debian's default is mcode).
+export GHDL_BACKEND := llvm
+export PYTHONDONTWRITEBYTECODE := 1
+
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.requirements.sha256
+RTL    := $(shell sed -e 's/\#.*//' -e '/^[[:space:]]*$$/d' -e 's|^|rtl/|' rtl/files.f)
+PYDIRS := tb sim_models scripts
+
+.PHONY: help setup test demo lint synth-check synth bench waves clean
+
+help:
+	@echo "make setup        install Debian packages (ghdl-llvm, yosys) and the pinned .venv"
+	@echo "make demo         set up if needed, run the most complete system simulation"
+	@echo "make test         set up if needed, lint + synthesizability check + all tests"
+	@echo "make synth        GHDL + yosys synth_intel (Cyclone IV E LE) LUT/FF report"
+	@echo "make bench        benchmarks -> build/bench/results.json"
+	@echo "make waves TEST='<pytest id>'   re-run one test with a .ghw waveform"
+	@echo "make clean        remove build outputs"
+
+# set-up runs when the venv is missing or the pinned requirements changed
+$(STAMP): requirements.txt requirements.lock scripts/setup.sh
+	./scripts/setup.sh
+
+setup:
+	./scripts/setup.sh
+
+demo: $(STAMP)
+	$(PY) scripts/demo.py
+
+lint: $(STAMP)
+	$(VENV)/bin/vsg -c scripts/vsg.yaml -f $(RTL)
+	$(VENV)/bin/ruff check $(PYDIRS)
+
+synth-check: $(STAMP)
+	$(PY) scripts/synth.py --check
+
+test: lint synth-check
+	$(PY) -m pytest -n auto -m "not bench" -q
+
+synth: $(STAMP)
+	$(PY) scripts/synth.py
+
+bench: synth
+	$(PY) scripts/bench.py
+
+waves: $(STAMP)
+	@test -n "$(TEST)" || { echo "usage: make waves TEST='tb/test_x.py::test_x[params]'"; exit 2; }
+	rm -f build/sim/last_waves.txt
+	WAVES=1 $(PY) -m pytest -q -p no:xdist "$(TEST)"
+	@echo "waveform(s):"; cat build/sim/last_waves.txt
+
+clean:
+	rm -rf build .pytest_cache .ruff_cache
+	find . -name __pycache__ -prune -exec rm -rf {} +

@@ -1,0 +1,149 @@
+#!/usr/bin/env python3
+"""Synthesis checks and resource estimates for every entity in ``rtl/files.f``.
+
+``--check``  (``make test``): ``ghdl --synth --out=none`` of every entity with its default
+             generics. GHDL rejects latches (no ``--latches``), ``wait for`` and other
+             non-synthesizable code, and evaluates the elaboration-time assertions.
+default      (``make synth``): GHDL synthesis to Verilog, a fix-up of GHDL 2.0's one-hot
+             ``case`` blocks (they have no ``default`` arm, which makes yosys infer false
+             latches: see shared/spec/toolchain.md §4), then yosys ``synth_intel -family
+             cycloneiv`` (Cyclone IV E has the same 4-input-LUT logic element as the reference
+             Cyclone III EP3C80). Writes ``build/synth/report.json`` as
+             ``{"<entity>": {"luts": N, "ffs": N}}`` and prints a table. Any latch is an error.
+
+These are estimates (yosys/ABC, not Quartus): packing and carry chains differ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RTL = ROOT / "rtl"
+OUT = ROOT / "build" / "synth"
+LIB = "canopen_master"
+ENV = dict(os.environ, GHDL_BACKEND=os.environ.get("GHDL_BACKEND", "llvm"))
+
+
+def sources() -> list[Path]:
+    files = []
+    for line in (RTL / "files.f").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            files.append(RTL / line)
+    return files
+
+
+def entities(files: list[Path]) -> list[str]:
+    names = []
+    for f in files:
+        for m in re.finditer(r"^\s*entity\s+(\w+)\s+is", f.read_text(), re.I | re.M):
+            names.append(m.group(1).lower())
+    return names
+
+
+def run(cmd: list[str], cwd: Path, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, cwd=cwd, env=ENV, text=True, capture_output=True, **kw)
+
+
+def analyse(work: Path) -> None:
+    work.mkdir(parents=True, exist_ok=True)
+    res = run(["ghdl", "-a", "--std=08", f"--work={LIB}", *map(str, sources())], work)
+    if res.returncode:
+        sys.exit(f"ghdl -a failed:\n{res.stdout}{res.stderr}")
+
+
+def add_case_defaults(verilog: str) -> str:
+    """Give every ``case`` without a ``default`` arm one that assigns 'x to its target."""
+    out: list[str] = []
+    block: list[str] | None = None
+    for line in verilog.splitlines():
+        if re.match(r"\s*case\s*\(", line):
+            block = [line]
+            continue
+        if block is not None:
+            block.append(line)
+            if re.match(r"\s*endcase\b", line):
+                body = "\n".join(block)
+                if "default" not in body:
+                    m = re.search(r":\s*(\w+)\s*<?=", body)
+                    if m:
+                        indent = re.match(r"\s*", line).group(0) + "  "
+                        block.insert(len(block) - 1, f"{indent}default: {m.group(1)} <= 'bx;")
+                out.extend(block)
+                block = None
+            continue
+        out.append(line)
+    return "\n".join(out) + "\n"
+
+
+def check(names: list[str]) -> int:
+    work = OUT / "check"
+    analyse(work)
+    failed = 0
+    for name in names:
+        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=none", name], work)
+        status = "ok" if res.returncode == 0 else "FAILED"
+        print(f"ghdl --synth {name:32s} {status}")
+        if res.returncode:
+            failed += 1
+            print(res.stdout + res.stderr)
+    return failed
+
+
+def estimate(names: list[str]) -> dict[str, dict[str, int]]:
+    if shutil.which("yosys") is None:
+        sys.exit("yosys not found: run make setup")
+    work = OUT / "work"
+    analyse(work)
+    report: dict[str, dict[str, int]] = {}
+    for name in names:
+        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=verilog", name], work)
+        if res.returncode:
+            sys.exit(f"ghdl --synth {name} failed:\n{res.stderr}")
+        vfile = work / f"{name}.v"
+        vfile.write_text(add_case_defaults(res.stdout))
+        script = (
+            f"read_verilog {vfile}; synth_intel -family cycloneiv -top {name}; "
+            f"tee -o {work / (name + '.stat')} stat"
+        )
+        yres = run(["yosys", "-q", "-l", str(work / f"{name}.yosys.log"), "-p", script], work)
+        if yres.returncode:
+            sys.exit(f"yosys failed for {name}:\n{yres.stdout}{yres.stderr}")
+        stat = (work / f"{name}.stat").read_text()
+        cells = {m.group(1): int(m.group(2))
+                 for m in re.finditer(r"^\s+(\S+)\s+(\d+)\s*$", stat, re.M)}
+        latches = sum(v for k, v in cells.items() if "latch" in k.lower())
+        if latches:
+            sys.exit(f"{name}: {latches} latch cells inferred: {cells}")
+        luts = sum(v for k, v in cells.items() if "lcell_comb" in k)
+        ffs = sum(v for k, v in cells.items() if k.endswith("dffeas") or k.startswith("$_DFF"))
+        report[name] = {"luts": luts, "ffs": ffs}
+    return report
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="synthesizability gate only")
+    args = ap.parse_args()
+    names = entities(sources())
+    if args.check:
+        sys.exit(1 if check(names) else 0)
+    report = estimate(names)
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "report.json").write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
+    print(f"\n{'entity':32s} {'LUTs':>8s} {'FFs':>8s}   (yosys synth_intel cycloneiv)")
+    for name, r in report.items():
+        print(f"{name:32s} {r['luts']:8d} {r['ffs']:8d}")
+    print(f"\nwritten: {OUT / 'report.json'}")
+
+
+if __name__ == "__main__":
+    main()
