@@ -12,7 +12,10 @@
 --   the next byte while the current one shifts, so a caller that keeps tx_valid_i high gets
 --   transactions of any length with no gap between bytes (the SCK period at a byte boundary is
 --   the same as inside a byte). Every received byte is presented for one cycle on rx_data_o with
---   rx_valid_o (no back-pressure: the caller must take it).
+--   rx_valid_o (no back-pressure: the caller must take it). When the length of a transaction is
+--   only known from received data (an RX buffer read that stops after the DLC byte), the caller
+--   withholds the next byte and pulses tx_end_i instead: the transaction then ends as soon as the
+--   bytes already accepted have been shifted (no dummy byte, no gap).
 --   The block knows nothing about MCP2510 instructions; it only honours the chip's electrical
 --   limits: SCK <= 5 MHz and the CS setup (tCSS), hold (tCSH) and disable (tCSD) times, which are
 --   generics with datasheet defaults and are converted to clock cycles rounding up.
@@ -48,6 +51,7 @@ entity mcp2510_spi_master is
         tx_data_i  : in    std_logic_vector(7 downto 0); -- byte to send, MSB first
         tx_last_i  : in    std_logic;                    -- this byte ends the transaction
         tx_ready_o : out   std_logic;                    -- byte accepted when valid and ready
+        tx_end_i   : in    std_logic;                    -- end after the accepted bytes
         -- byte stream from the slave (MISO)
         rx_valid_o : out   std_logic;                    -- one-cycle strobe: rx_data_o is valid
         rx_data_o  : out   std_logic_vector(7 downto 0); -- byte received during the last byte
@@ -130,12 +134,12 @@ architecture rtl of mcp2510_spi_master is
     constant config_ok_c : boolean := check_config;
 
     type state_t is (
-        s_idle,   -- CS high, waiting for the first byte
-        s_setup,  -- CS low, MOSI holds bit 7, waiting tCSS before the first SCK rise
-        s_shift,  -- shifting bits: SCK toggles every half_period_c cycles
-        s_stall,  -- byte boundary reached but the next byte is not there yet: SCK held low
-        s_hold,   -- last bit done, SCK low, waiting tCSH before CS rises
-        s_disable -- CS high, waiting tCSD before the next transaction may start
+        S_IDLE,   -- CS high, waiting for the first byte
+        S_SETUP,  -- CS low, MOSI holds bit 7, waiting tCSS before the first SCK rise
+        S_SHIFT,  -- shifting bits: SCK toggles every half_period_c cycles
+        S_STALL,  -- byte boundary reached but the next byte is not there yet: SCK held low
+        S_HOLD,   -- last bit done, SCK low, waiting tCSH before CS rises
+        S_DISABLE -- CS high, waiting tCSD before the next transaction may start
     );
 
     -- engine state
@@ -154,6 +158,8 @@ architecture rtl of mcp2510_spi_master is
     signal hold_valid : std_logic;
     -- the byte flagged tx_last_i has been accepted: accept nothing more in this transaction
     signal last_accepted : std_logic;
+    -- tx_end_i seen: end the transaction at the next byte boundary
+    signal end_req : std_logic;
     -- registered MISO input (one flop; MISO is driven from our own SCK)
     signal miso_q : std_logic;
     -- registered pin outputs
@@ -167,8 +173,8 @@ begin
 
     -- A byte is taken straight into the shift register when idle, otherwise into the holding
     -- register while it is empty and the transaction's last byte has not been accepted yet.
-    tx_ready <= '1' when state = s_idle else
-                '1' when (state = s_setup or state = s_shift or state = s_stall)
+    tx_ready <= '1' when state = S_IDLE else
+                '1' when (state = S_SETUP or state = S_SHIFT or state = S_STALL)
                          and hold_valid = '0' and last_accepted = '0' else
                 '0';
 
@@ -176,12 +182,13 @@ begin
     begin
 
         if rst_n_i = '0' then
-            state         <= s_idle;
+            state         <= S_IDLE;
             phase_cnt     <= 0;
             bit_cnt       <= 0;
             shreg_last    <= '0';
             hold_valid    <= '0';
             last_accepted <= '0';
+            end_req       <= '0';
             cs_n_q        <= '1';
             sck_q         <= '0';
             mosi_q        <= '0';
@@ -192,17 +199,21 @@ begin
             done_o     <= '0';
 
             -- accept a byte into the holding register during a transaction -----------------
-            if tx_valid_i = '1' and tx_ready = '1' and state /= s_idle then
+            if tx_valid_i = '1' and tx_ready = '1' and state /= S_IDLE then
                 hold_data     <= tx_data_i;
                 hold_last     <= tx_last_i;
                 hold_valid    <= '1';
                 last_accepted <= tx_last_i;
             end if;
 
+            if tx_end_i = '1' and state /= S_IDLE then
+                end_req <= '1';
+            end if;
+
             case state is
 
                 -- ----------------------------------------------------------------------------
-                when s_idle =>
+                when S_IDLE =>
 
                     sck_q <= '0';
                     if tx_valid_i = '1' then
@@ -213,24 +224,24 @@ begin
                         cs_n_q        <= '0';
                         bit_cnt       <= 0;
                         phase_cnt     <= setup_wait_c - 1;
-                        state         <= s_setup;
+                        state         <= S_SETUP;
                     end if;
 
                 -- ----------------------------------------------------------------------------
-                when s_setup =>
+                when S_SETUP =>
 
                     if phase_cnt = 0 then
                         -- first rising edge: sample bit 7 from the slave
                         sck_q     <= '1';
                         shreg     <= shreg(6 downto 0) & miso_q;
                         phase_cnt <= half_period_c - 1;
-                        state     <= s_shift;
+                        state     <= S_SHIFT;
                     else
                         phase_cnt <= phase_cnt - 1;
                     end if;
 
                 -- ----------------------------------------------------------------------------
-                when s_shift =>
+                when S_SHIFT =>
 
                     if phase_cnt /= 0 then
                         phase_cnt <= phase_cnt - 1;
@@ -257,46 +268,50 @@ begin
                             hold_valid <= '0';
                             mosi_q     <= hold_data(7);
                             bit_cnt    <= 0;
-                        elsif shreg_last = '1' then
+                        elsif shreg_last = '1' or end_req = '1' or tx_end_i = '1' then
                             phase_cnt <= hold_wait_c - 1;
-                            state     <= s_hold;
+                            state     <= S_HOLD;
                         else
-                            state <= s_stall;
+                            state <= S_STALL;
                         end if;
                     end if;
 
                 -- ----------------------------------------------------------------------------
-                when s_stall =>
+                when S_STALL =>
 
                     -- SCK stays low; resume with a full low phase once the next byte is in
-                    if hold_valid = '1' then
+                    if end_req = '1' or tx_end_i = '1' then
+                        phase_cnt <= hold_wait_c - 1;
+                        state     <= S_HOLD;
+                    elsif hold_valid = '1' then
                         shreg      <= hold_data;
                         shreg_last <= hold_last;
                         hold_valid <= '0';
                         mosi_q     <= hold_data(7);
                         bit_cnt    <= 0;
                         phase_cnt  <= half_period_c - 1;
-                        state      <= s_shift;
+                        state      <= S_SHIFT;
                     end if;
 
                 -- ----------------------------------------------------------------------------
-                when s_hold =>
+                when S_HOLD =>
 
                     if phase_cnt = 0 then
                         cs_n_q        <= '1';
                         done_o        <= '1';
                         last_accepted <= '0';
+                        end_req       <= '0';
                         phase_cnt     <= disable_wait_c - 1;
-                        state         <= s_disable;
+                        state         <= S_DISABLE;
                     else
                         phase_cnt <= phase_cnt - 1;
                     end if;
 
                 -- ----------------------------------------------------------------------------
-                when s_disable =>
+                when S_DISABLE =>
 
                     if phase_cnt = 0 then
-                        state <= s_idle;
+                        state <= S_IDLE;
                     else
                         phase_cnt <= phase_cnt - 1;
                     end if;
@@ -318,7 +333,7 @@ begin
     end process miso_reg_proc;
 
     tx_ready_o <= tx_ready;
-    busy_o     <= '0' when state = s_idle else '1';
+    busy_o     <= '0' when state = S_IDLE else '1';
     spi_cs_n_o <= cs_n_q;
     spi_sck_o  <= sck_q;
     spi_mosi_o <= mosi_q;

@@ -107,6 +107,7 @@ class TB:
         dut.tx_valid_i.value = 0
         dut.tx_last_i.value = 0
         dut.tx_data_i.value = 0
+        dut.tx_end_i.value = 0
 
     async def _count_done(self) -> None:
         while True:
@@ -212,6 +213,53 @@ async def run_stalled_streaming(dut):
     await ClockCycles(dut.clk_i, 4)
     tb.check_transactions(sent, gapless=False)
     assert min(tb.slave.sck_periods_ps) == tb.exp.sck_period_ps
+    assert not tb.expected_rx
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_end_after_received_byte(dut):
+    """Purpose: a transaction whose length is decided from received data (tx_end_i).
+
+    Verifies: the caller streams bytes without tx_last_i, withholds the next byte when it
+    decides to stop and pulses tx_end_i on the rx_valid_o strobe of byte k; CS rises after
+    byte k with no extra byte clocked and no gap before it (exact duration), done_o pulses.
+    Sequence: 30 transactions, each stopped after a random number of bytes.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    sent: list[bytes] = []
+    for _ in range(30):
+        n = random.randint(1, 14)
+        data = bytes(random.getrandbits(8) for _ in range(n))
+        received = 0
+        idx = 0
+        while True:
+            await RisingEdge(dut.clk_i)
+            if dut.tx_valid_i.value == 1 and dut.tx_ready_o.value == 1:
+                idx += 1
+            if dut.rx_valid_o.value == 1:
+                received += 1
+            dut.tx_end_i.value = 0
+            if received == n:
+                break
+            if received == n - 1 and idx == n:
+                # all n bytes streamed, byte n-1 received: stop after the one now shifting
+                dut.tx_valid_i.value = 0
+                dut.tx_end_i.value = 1
+                continue
+            if idx < n:
+                dut.tx_valid_i.value = 1
+                dut.tx_data_i.value = data[idx]
+                dut.tx_last_i.value = 0
+            else:
+                dut.tx_valid_i.value = 0
+        dut.tx_valid_i.value = 0
+        dut.tx_end_i.value = 0
+        await tb.wait_idle()
+        sent.append(data)
+    await ClockCycles(dut.clk_i, 4)
+    tb.check_transactions(sent, gapless=True)
     assert not tb.expected_rx
     await Timer(1, "ns")
 
