@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.requirements.sha256
 RTL    := $(shell sed -e 's/\#.*//' -e '/^[[:space:]]*$$/d' -e 's|^|rtl/|' rtl/files.f)
 PYDIRS := tb sim_models scripts
 
-.PHONY: help setup test demo lint synth-check synth bench waves clean
+.PHONY: help setup test demo lint synth-check synth bench waves docs clean
 
 help:
 	@echo "make setup        install Debian packages (ghdl-llvm, yosys) and the pinned .venv"
@@ -18,6 +18,7 @@ help:
 	@echo "make synth        GHDL + yosys synth_intel (Cyclone IV E LE) LUT/FF report"
 	@echo "make bench        benchmarks -> build/bench/results.json"
 	@echo "make waves TEST='<pytest id>'   re-run one test with a .ghw waveform"
+	@echo "make docs         render the WaveDrom timing diagrams in docs/wavedrom"
 	@echo "make clean        remove build outputs"
 
 # set-up runs when the venv is missing or the pinned requirements changed
@@ -30,8 +31,11 @@ setup:
 demo: $(STAMP)
 	$(PY) scripts/demo.py
 
+# VSG exits 0 on warnings; any reported line (error or warning) fails the lint here
 lint: $(STAMP)
-	$(VENV)/bin/vsg -c scripts/vsg.yaml -f $(RTL)
+	@out=$$($(VENV)/bin/vsg -c scripts/vsg.yaml -of syntastic -f $(RTL)); \
+	  if [ -n "$$out" ]; then echo "$$out"; echo "VSG: violations above"; exit 1; fi; \
+	  echo "VSG: $(words $(RTL)) files clean"
 	$(VENV)/bin/ruff check $(PYDIRS)
 
 synth-check: $(STAMP)
@@ -51,6 +55,9 @@ waves: $(STAMP)
 	rm -f build/sim/last_waves.txt
 	WAVES=1 $(PY) -m pytest -q -p no:xdist "$(TEST)"
 	@echo "waveform(s):"; cat build/sim/last_waves.txt
+
+docs: $(STAMP)
+	$(PY) scripts/render_wavedrom.py
 
 clean:
 	rm -rf build .pytest_cache .ruff_cache

@@ -1,4 +1,7 @@
 # Compile order of the canopen_master VHDL library (VHDL-2008), read by every flow:
 # tb/tblib/runner.py (simulation), scripts/synth.py (ghdl --synth + yosys), scripts/lint.sh.
 # One file per line, relative to this directory; packages first. '#' starts a comment.
+mcp2510_pkg.vhd
 mcp2510_spi_master.vhd
+mcp2510_instr.vhd
+mcp2510_ctrl.vhd

@@ -38,8 +38,8 @@ entity mcp2510_spi_master is
     generic (
         CLK_FREQ_HZ   : positive                  := 50_000_000; -- clk_i frequency [Hz]
         SPI_SCLK_HZ   : positive                  := 5_000_000;  -- max SCK [Hz], <= 5 MHz
-        CS_SETUP_NS   : natural range 0 to 10_000 := 50;         -- tCSS: CS fall to SCK [ns]
-        CS_HOLD_NS    : natural range 0 to 10_000 := 50;         -- tCSH: SCK to CS rise [ns]
+        CS_SETUP_NS   : natural range 0 to 10_000 := 100;        -- tCSS: CS fall to SCK [ns]
+        CS_HOLD_NS    : natural range 0 to 10_000 := 100;        -- tCSH: SCK to CS rise [ns]
         CS_DISABLE_NS : natural range 0 to 10_000 := 100         -- tCSD: CS high time [ns]
     );
     port (

@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Synthesis checks and resource estimates for every entity in ``rtl/files.f``.
 
-``--check``  (``make test``): ``ghdl --synth --out=none`` of every entity with its default
-             generics. GHDL rejects latches (no ``--latches``), ``wait for`` and other
-             non-synthesizable code, and evaluates the elaboration-time assertions.
+``--check``  (``make test``): ``ghdl --synth`` of every entity with its default generics,
+             producing the same Verilog netlist as ``make synth`` (then discarded). GHDL
+             rejects latches (no ``--latches``), ``wait for`` and other non-synthesizable code,
+             and evaluates the elaboration-time assertions.
 default      (``make synth``): GHDL synthesis to Verilog, a fix-up of GHDL 2.0's one-hot
              ``case`` blocks (they have no ``default`` arm, which makes yosys infer false
              latches: see shared/spec/toolchain.md §4), then yosys ``synth_intel -family
@@ -89,7 +90,7 @@ def check(names: list[str]) -> int:
     analyse(work)
     failed = 0
     for name in names:
-        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=none", name], work)
+        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=verilog", name], work)
         status = "ok" if res.returncode == 0 else "FAILED"
         print(f"ghdl --synth {name:32s} {status}")
         if res.returncode:

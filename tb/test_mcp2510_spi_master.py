@@ -352,8 +352,8 @@ def test_mcp2510_spi_master(request, clk_hz, sclk_hz):
         parameters={
             "CLK_FREQ_HZ": clk_hz,
             "SPI_SCLK_HZ": sclk_hz,
-            "CS_SETUP_NS": 50,
-            "CS_HOLD_NS": 50,
+            "CS_SETUP_NS": 100,
+            "CS_HOLD_NS": 100,
             "CS_DISABLE_NS": 100,
         },
     )
@@ -372,8 +372,8 @@ def test_bench_mcp2510_spi_master(request, clk_hz, sclk_hz):
         parameters={
             "CLK_FREQ_HZ": clk_hz,
             "SPI_SCLK_HZ": sclk_hz,
-            "CS_SETUP_NS": 50,
-            "CS_HOLD_NS": 50,
+            "CS_SETUP_NS": 100,
+            "CS_HOLD_NS": 100,
             "CS_DISABLE_NS": 100,
         },
     )

@@ -53,7 +53,7 @@ def run_cocotb(
     name: str,
     parameters: Mapping[str, int] | None = None,
     extra_env: Mapping[str, str] | None = None,
-    testcase: str | None = None,
+    testcase: str | list[str] | None = None,
     stop_time_ms: float = 1000.0,
     waves: bool | None = None,
 ) -> Path:

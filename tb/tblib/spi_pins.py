@@ -11,14 +11,9 @@ import cocotb
 from cocotb.handle import SimHandleBase
 from cocotb.triggers import First, ValueChange
 from cocotb.types import Logic
-from cocotb.utils import get_sim_time
 
 from sim_models.spi_slave import SpiPinSlave, SpiViolation
-
-
-def sim_time_ps() -> int:
-    """Current simulated time as an integer number of ps (cocotb returns a float)."""
-    return round(get_sim_time("ps"))
+from tb.tblib.model_clock import sim_time_ps
 
 _HIGH_Z = Logic("Z")
 
