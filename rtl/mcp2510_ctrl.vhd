@@ -41,8 +41,8 @@ entity mcp2510_ctrl is
     generic (
         CLK_FREQ_HZ     : positive                  := 50_000_000; -- clk_i frequency [Hz]
         SPI_SCLK_HZ     : positive                  := 5_000_000;  -- max SCK [Hz], <= 5 MHz
-        CS_SETUP_NS     : natural range 0 to 10_000 := 50;         -- tCSS [ns]
-        CS_HOLD_NS      : natural range 0 to 10_000 := 50;         -- tCSH [ns]
+        CS_SETUP_NS     : natural range 0 to 10_000 := 100;        -- tCSS [ns]
+        CS_HOLD_NS      : natural range 0 to 10_000 := 100;        -- tCSH [ns]
         CS_DISABLE_NS   : natural range 0 to 10_000 := 100;        -- tCSD [ns]
         OSC_FREQ_HZ     : positive                  := 16_000_000; -- MCP2510 oscillator [Hz]
         CAN_BITRATE_BPS : positive                  := 1_000_000;  -- CAN bit rate [bit/s]
@@ -189,6 +189,7 @@ architecture rtl of mcp2510_ctrl is
                                      or MCP_CANINTF_TX2IF_C;
     constant int_clear_c : byte_t := tx_flags_c or MCP_CANINTF_ERRIF_C or MCP_CANINTF_WAKIF_C
                                      or MCP_CANINTF_MERRF_C;
+    constant eflg_ovr_c  : byte_t := MCP_EFLG_RX0OVR_C or MCP_EFLG_RX1OVR_C;
 
     function rxbctrl (bukt : boolean) return byte_t is
 
@@ -218,7 +219,7 @@ architecture rtl of mcp2510_ctrl is
         v(15 downto 13) := s11(2 downto 0);
 
         if ext then
-            v(8 + 3) := '1'; -- EXIDE
+            v(15 downto 8) := v(15 downto 8) or MCP_SIDL_EXIDE_C;
         end if;
 
         return v; -- byte 0 = SIDH, byte 1 = SIDL, byte 2 = EID8, byte 3 = EID0
@@ -360,6 +361,34 @@ architecture rtl of mcp2510_ctrl is
         return v(8 * k + 7 downto 8 * k);
 
     end function byte_of;
+
+    -- READ STATUS byte -> TXREQ / TXnIF of TXB2..TXB0
+
+    function status_txreq (st : byte_t) return std_logic_vector is
+
+        variable v : std_logic_vector(2 downto 0);
+
+    begin
+
+        v(0) := or (st and MCP_STATUS_TXB0_TXREQ_C);
+        v(1) := or (st and MCP_STATUS_TXB1_TXREQ_C);
+        v(2) := or (st and MCP_STATUS_TXB2_TXREQ_C);
+        return v;
+
+    end function status_txreq;
+
+    function status_txif (st : byte_t) return std_logic_vector is
+
+        variable v : std_logic_vector(2 downto 0);
+
+    begin
+
+        v(0) := or (st and MCP_STATUS_TX0IF_C);
+        v(1) := or (st and MCP_STATUS_TX1IF_C);
+        v(2) := or (st and MCP_STATUS_TX2IF_C);
+        return v;
+
+    end function status_txif;
 
     function buf_bit (n : natural) return std_logic_vector is
 
@@ -513,7 +542,7 @@ begin
 
             when S_INT_TXB | S_STAT_TXB =>
 
-                cmd_addr <= std_logic_vector(unsigned(MCP_TXB0CTRL_C) + 16 * buf_idx);
+                cmd_addr <= std_logic_vector(unsigned(MCP_TXB0CTRL_C) + MCP_TXB_STRIDE_C * buf_idx);
                 cmd_len  <= x"1";
 
             -- BIT MODIFY CANINTF: clear exactly the flags that were read
@@ -543,8 +572,9 @@ begin
 
                 if txq_ide = '1' then
                     wd(8 * hdr + 7 downto 8 * hdr)       := txq_id(28 downto 21);
-                    wd(8 * hdr + 15 downto 8 * hdr + 8)  := txq_id(20 downto 18) & "01" & "0"
-                                                            & txq_id(17 downto 16);
+                    wd(8 * hdr + 15 downto 8 * hdr + 8)  := (txq_id(20 downto 18) & "000"
+                                                             & txq_id(17 downto 16))
+                                                            or MCP_SIDL_EXIDE_C;
                     wd(8 * hdr + 23 downto 8 * hdr + 16) := txq_id(15 downto 8);
                     wd(8 * hdr + 31 downto 8 * hdr + 24) := txq_id(7 downto 0);
                 else
@@ -575,9 +605,11 @@ begin
                 cmd_instr <= MCP_INSTR_WRITE_C;
 
                 if hdr = 1 then
-                    cmd_addr <= std_logic_vector(unsigned(MCP_TXB0CTRL_C) + 16 * txq_buf);
+                    cmd_addr <= std_logic_vector(unsigned(MCP_TXB0CTRL_C)
+                                                 + MCP_TXB_STRIDE_C * txq_buf);
                 else
-                    cmd_addr <= std_logic_vector(unsigned(MCP_TXB0SIDH_C) + 16 * txq_buf);
+                    cmd_addr <= std_logic_vector(unsigned(MCP_TXB0SIDH_C)
+                                                 + MCP_TXB_STRIDE_C * txq_buf);
                 end if;
 
                 cmd_len <= std_logic_vector(to_unsigned(hdr + 5 + n_data, 4));
@@ -813,7 +845,8 @@ begin
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
-                        if (byte_of(rsp_rdata, 0) and MCP_CANSTAT_OPMOD_MASK_C) = x"00" then
+                        if unsigned(byte_of(rsp_rdata, 0) and MCP_CANSTAT_OPMOD_MASK_C)
+                           = MCP_OPMODE_NORMAL_C then
                             init_done_o <= '1';
                             attempt     <= 0;
                             go(S_IDLE);
@@ -861,8 +894,8 @@ begin
                     elsif abort_req = '1' then
                         abort_req <= '0';
                         go(S_ABORT_SET);
-                    elsif tx_valid_i = '1' and pending(to_integer(unsigned(tx_buf_i))) = '0'
-                          and unsigned(tx_buf_i) <= 2 then
+                    elsif tx_valid_i = '1' and unsigned(tx_buf_i) <= 2
+                          and pending(to_integer(unsigned(tx_buf_i)) mod 3) = '0' then
                         txq_buf  <= to_integer(unsigned(tx_buf_i));
                         txq_txp  <= tx_txp_i;
                         txq_send <= tx_send_i;
@@ -908,8 +941,14 @@ begin
                         issue;
                     elsif rsp_valid = '1' then
                         buf_idx <= 0;
-                        if (byte_of(rsp_rdata, 0) and MCP_CANINTF_MERRF_C) /= x"00"
-                           and pending /= "000" then
+                        if (byte_of(rsp_rdata, 0) and int_clear_c) = x"00"
+                           and (byte_of(rsp_rdata, 1) and eflg_ovr_c) = x"00" then
+                            -- nothing (left) to handle: the re-read after an overflow clear,
+                            -- or INT already released
+                            blank_cnt <= pin_settle_c;
+                            go(S_IDLE);
+                        elsif (byte_of(rsp_rdata, 0) and MCP_CANINTF_MERRF_C) /= x"00"
+                              and pending /= "000" then
                             go(S_INT_TXB);
                         else
                             go(S_INT_CLEAR);
@@ -951,7 +990,7 @@ begin
                         int_valid_o   <= '1';
                         rx_overflow_o <= eflg_q(7 downto 6);
                         blank_cnt     <= pin_settle_c;
-                        if (eflg_q and (MCP_EFLG_RX0OVR_C or MCP_EFLG_RX1OVR_C)) /= x"00" then
+                        if (eflg_q and eflg_ovr_c) /= x"00" then
                             go(S_INT_CLR_OVR);
                         else
                             go(S_IDLE);
@@ -963,8 +1002,9 @@ begin
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
-                        blank_cnt <= pin_settle_c;
-                        go(S_IDLE);
+                        -- read CANINTF/EFLG once more: an overflow that arrived after the read
+                        -- set its RXnOVR bit again (and ERRIF was cleared meanwhile)
+                        go(S_INT_READ);
                     end if;
 
                 -- ----------------------------------------------------------------------------
@@ -1032,8 +1072,8 @@ begin
                     elsif rsp_valid = '1' then
                         -- READ STATUS: bit 2/4/6 = TXB0/1/2 TXREQ, bit 3/5/7 = TX0/1/2IF
                         rd     := rsp_rdata;
-                        pend_v := rd(6) & rd(4) & rd(2);
-                        mask_v := "00000" & (rd(7) & rd(5) & rd(3));
+                        pend_v := status_txreq(byte_of(rd, 0));
+                        mask_v := "00000" & status_txif(byte_of(rd, 0));
                         if (pending and pend_v) /= "000" and polls + 1 < abort_polls_c then
                             -- still on the wire (a long frame at a low bit rate): wait again
                             polls <= polls + 1;

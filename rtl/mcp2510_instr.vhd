@@ -30,8 +30,8 @@ entity mcp2510_instr is
     generic (
         CLK_FREQ_HZ   : positive                  := 50_000_000; -- clk_i frequency [Hz]
         SPI_SCLK_HZ   : positive                  := 5_000_000;  -- max SCK [Hz], <= 5 MHz
-        CS_SETUP_NS   : natural range 0 to 10_000 := 50;         -- tCSS [ns]
-        CS_HOLD_NS    : natural range 0 to 10_000 := 50;         -- tCSH [ns]
+        CS_SETUP_NS   : natural range 0 to 10_000 := 100;        -- tCSS [ns]
+        CS_HOLD_NS    : natural range 0 to 10_000 := 100;        -- tCSH [ns]
         CS_DISABLE_NS : natural range 0 to 10_000 := 100         -- tCSD [ns]
     );
     port (

@@ -34,6 +34,16 @@ package mcp2510_pkg is
     constant MCP_INSTR_READ_STATUS_C : byte_t := x"A0";
     constant MCP_INSTR_BIT_MODIFY_C  : byte_t := x"05";
 
+    -- READ STATUS output byte
+    constant MCP_STATUS_RX0IF_C      : byte_t := x"01";
+    constant MCP_STATUS_RX1IF_C      : byte_t := x"02";
+    constant MCP_STATUS_TXB0_TXREQ_C : byte_t := x"04";
+    constant MCP_STATUS_TX0IF_C      : byte_t := x"08";
+    constant MCP_STATUS_TXB1_TXREQ_C : byte_t := x"10";
+    constant MCP_STATUS_TX1IF_C      : byte_t := x"20";
+    constant MCP_STATUS_TXB2_TXREQ_C : byte_t := x"40";
+    constant MCP_STATUS_TX2IF_C      : byte_t := x"80";
+
     -- ---------------------------------------------------------------------------------------------
     -- Register addresses
     -- ---------------------------------------------------------------------------------------------

@@ -438,6 +438,34 @@ async def run_tx_errors_status_and_abort(dut):
     await Timer(1, "ns")
 
 
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_tx_request_for_missing_buffer_refused(dut):
+    """Purpose: a request for TX buffer 3 (the chip has 0..2) is a defined reaction, not a crash.
+
+    Verifies: tx_ready_o stays low for tx_buf_i = 3 while the request is held, nothing is
+    written to the chip; the next request for a real buffer is executed.
+    """
+    tb = TB(dut)
+    await tb.reset_and_init()
+    n_spi = len(tb.spi_transactions())
+    await FallingEdge(dut.clk_i)
+    dut.tx_buf_i.value = 3
+    dut.tx_valid_i.value = 1
+    for _ in range(50):
+        await ReadOnly()
+        assert dut.tx_ready_o.value == 0, "a request for buffer 3 must not be taken"
+        await FallingEdge(dut.clk_i)
+    dut.tx_valid_i.value = 0
+    await Timer(20, "us")
+    assert len(tb.spi_transactions()) == n_spi
+    f = can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False)
+    await tb.send(f, buf=2, txp=0)
+    await tb.wait_len(tb.peer.received, 1, 1_000, 2)
+    assert same_frame(tb.peer.received[0][1], f)
+    tb.check_no_violations()
+    await Timer(1, "ns")
+
+
 @cocotb.test(timeout_time=50, timeout_unit="ms")
 async def run_wrong_bitrate_peer_sees_errors(dut):
     """Purpose: a node at another bit rate cannot talk to the DUT (a wrong CNF is caught).

@@ -36,10 +36,11 @@ class SpiPinBridge:
         self._mosi = mosi
         self._miso = miso
         self._miso.value = _HIGH_Z
-        self._task = cocotb.start_soon(self._run())
+        #: the bridge coroutine (a test may await it to catch a violation it raises)
+        self.task = cocotb.start_soon(self._run())
 
     def stop(self) -> None:
-        self._task.cancel()
+        self.task.cancel()
 
     def _level(self, sig: SimHandleBase, what: str, t_ps: int) -> int:
         v = sig.value
