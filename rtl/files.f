@@ -2,7 +2,9 @@
 # tb/tblib/runner.py (simulation), scripts/synth.py (ghdl --synth + yosys), scripts/lint.sh.
 # One file per line, relative to this directory; packages first. '#' starts a comment.
 mcp2510_pkg.vhd
+canopen_master_pkg.vhd
 canopen_pkg.vhd
 mcp2510_spi_master.vhd
 mcp2510_instr.vhd
 mcp2510_ctrl.vhd
+canopen_master_fsm.vhd

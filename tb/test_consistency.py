@@ -23,7 +23,7 @@ from types import SimpleNamespace
 import pytest
 
 from sim_models.mcp2510 import regs
-from tb.tblib.runner import RTL_DIR, rtl_sources
+from tb.tblib.runner import ROOT, RTL_DIR, rtl_sources
 
 PKG = RTL_DIR / "mcp2510_pkg.vhd"
 FILES_F = RTL_DIR / "files.f"
@@ -217,3 +217,48 @@ def test_files_f_checks_can_fail(tmp_path):
     assert f"{order[0].name} listed 2 times" in problems, problems
     assert "ghost.vhd listed but does not exist" in problems, problems
     assert f"{order[1].name} not listed" in problems, problems
+
+
+# --------------------------------------------------------------------------- master FSM
+FSM_PKG = ROOT / "rtl" / "canopen_master_pkg.vhd"
+FSM_DOC = ROOT / "docs" / "fsm.md"
+
+
+def vhdl_states(text: str) -> list[str]:
+    body = re.search(r"type\s+state_t\s+is\s*\((.*?)\);", text, re.S | re.I)
+    assert body, "state_t not found"
+    names = re.sub(r"--[^\n]*", "", body.group(1))
+    return [n.strip().upper() for n in names.split(",") if n.strip()]
+
+
+def doc_tables(text: str) -> tuple[list[tuple[int, str]], list[tuple[str, str, str]]]:
+    states = [(int(m.group(1)), m.group(2)) for m in
+              re.finditer(r"^\| (\d+) \| `(S_\w+)` \|", text, re.M)]
+    trans = [(m.group(1), m.group(2), m.group(3)) for m in
+             re.finditer(r"^\| ([TG]\d+) \| ([^|]+?) \| (St\d+) \|", text, re.M)]
+    return states, trans
+
+
+def test_fsm_states_vhdl_equal_python_and_doc():
+    from tb.tblib.fsm_states import State
+
+    vhdl = vhdl_states(FSM_PKG.read_text())
+    assert len(vhdl) == 14, vhdl
+    assert vhdl == [s.name for s in State], "VHDL enum order differs from tb/tblib/fsm_states"
+    states, _ = doc_tables(FSM_DOC.read_text())
+    assert states == [(s.value, s.name) for s in State], "docs/fsm.md state table differs"
+
+
+def test_fsm_transitions_doc_equal_python():
+    from tb.tblib.fsm_states import THESIS_IDS, TRANSITIONS
+
+    _, trans = doc_tables(FSM_DOC.read_text())
+    expected = [(t.tid, "St2, St5–St12" if t.tid == "G4" else f"St{t.src.value}",
+                 f"St{t.dst.value}") for t in TRANSITIONS]
+    assert trans == expected, "docs/fsm.md transition table differs from tb/tblib/fsm_states"
+    assert [t for t, _, _ in trans if t.startswith("T")] == list(THESIS_IDS)
+
+
+def test_fsm_state_checker_can_fail():
+    doctored = FSM_PKG.read_text().replace("S_PARSE,", "S_PARSE, S_EXTRA,")
+    assert len(vhdl_states(doctored)) == 15
