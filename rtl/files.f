@@ -4,7 +4,13 @@
 mcp2510_pkg.vhd
 canopen_master_pkg.vhd
 canopen_pkg.vhd
+canopen_regs_pkg.vhd
+canopen_sdo_client.vhd
+canopen_node_monitor.vhd
 mcp2510_spi_master.vhd
 mcp2510_instr.vhd
 mcp2510_ctrl.vhd
 canopen_master_fsm.vhd
+canopen_host_regs.vhd
+canopen_master_core.vhd
+canopen_master_top.vhd

@@ -306,10 +306,12 @@ architecture rtl of mcp2510_ctrl is
 
     type txp_array_t is array (0 to 2) of std_logic_vector(1 downto 0);
 
-    signal txp_cache  : txp_array_t;
-    signal txp_known  : std_logic_vector(2 downto 0);
-    signal pending    : std_logic_vector(2 downto 0);
-    signal abort_req  : std_logic;
+    signal txp_cache : txp_array_t;
+    signal txp_known : std_logic_vector(2 downto 0);
+    signal pending   : std_logic_vector(2 downto 0);
+    signal abort_req : std_logic;
+    -- reinit_i seen (a pulse that arrives while an SPI sequence runs is kept)
+    signal reinit_req : std_logic;
     signal status_req : std_logic;
 
     -- values read on an INT
@@ -710,6 +712,7 @@ begin
             txp_known      <= (others => '0');
             pending        <= (others => '0');
             abort_req      <= '0';
+            reinit_req     <= '0';
             status_req     <= '0';
             blank_cnt      <= 0;
             init_done_o    <= '0';
@@ -739,6 +742,9 @@ begin
             -- remember requests that arrive while busy
             if tx_abort_i = '1' then
                 abort_req <= '1';
+            end if;
+            if reinit_i = '1' then
+                reinit_req <= '1';
             end if;
             if status_req_i = '1' then
                 status_req <= '1';
@@ -870,8 +876,9 @@ begin
                 when S_FAILED =>
 
                     init_fail_o <= '1';
-                    if reinit_i = '1' then
-                        attempt <= 0;
+                    if reinit_req = '1' then
+                        reinit_req <= '0';
+                        attempt    <= 0;
                         go(S_RESET_CMD);
                     end if;
 
@@ -880,8 +887,9 @@ begin
                 -- ----------------------------------------------------------------------------
                 when S_IDLE =>
 
-                    if reinit_i = '1' then
-                        attempt <= 0;
+                    if reinit_req = '1' then
+                        reinit_req <= '0';
+                        attempt    <= 0;
                         go(S_RESET_CMD);
                     elsif blank_cnt = 0 and rx0_sync(1) = '0' and fifo_count < RX_FIFO_DEPTH then
                         rx_buf <= 0;
@@ -1239,7 +1247,7 @@ begin
     end process capture_proc;
 
     -- a request is taken in S_IDLE when nothing more urgent is waiting
-    tx_ready_o <= '1' when state = S_IDLE and reinit_i = '0'
+    tx_ready_o <= '1' when state = S_IDLE and reinit_req = '0' and reinit_i = '0'
                            and not (blank_cnt = 0 and (rx0_sync(1) = '0' or rx1_sync(1) = '0'
                                                  or int_sync(1) = '0'))
                                    and abort_req = '0' and tx_valid_i = '1'

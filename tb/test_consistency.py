@@ -262,3 +262,11 @@ def test_fsm_transitions_doc_equal_python():
 def test_fsm_state_checker_can_fail():
     doctored = FSM_PKG.read_text().replace("S_PARSE,", "S_PARSE, S_EXTRA,")
     assert len(vhdl_states(doctored)) == 15
+
+
+# --------------------------------------------------------------------------- Quartus project
+def test_qsf_lists_rtl_files_in_compile_order():
+    qsf = (ROOT / "constraints" / "ep3c80_reference.qsf").read_text()
+    listed = re.findall(r"VHDL_FILE \.\./rtl/(\S+\.vhd) -library canopen_master", qsf)
+    assert listed == [p.name for p in rtl_sources()], (
+        "constraints/ep3c80_reference.qsf must list rtl/files.f in the same order")

@@ -56,12 +56,15 @@ def run_cocotb(
     testcase: str | list[str] | None = None,
     stop_time_ms: float = 1000.0,
     waves: bool | None = None,
+    ieee_asserts: str = "disable-at-0",
 ) -> Path:
     """Build ``toplevel`` from ``rtl/files.f`` and run the cocotb tests in ``module``.
 
     A failing cocotb test fails the calling pytest test. ``stop_time_ms`` is a safety net
     against GHDL not ending the simulation (GHDL issue #3064); every cocotb test also carries
     its own timeout. ``waves`` defaults to the ``WAVES`` environment variable (``make waves``).
+    ``ieee_asserts`` is GHDL's ``--ieee-asserts`` (numeric_std metavalue warnings): benches whose
+    bus functional models drive 'X' on idle inputs (cocotb-bus's Avalon master) use "disable".
     Returns the build directory (which holds ``<toplevel>.ghw`` when waves were requested).
     """
     from cocotb_tools.runner import get_runner
@@ -91,7 +94,7 @@ def run_cocotb(
         hdl_toplevel_library=HDL_LIBRARY,
         build_dir=build_dir,
         test_args=["--std=08"],
-        plusargs=[f"--stop-time={int(stop_time_ms * 1000)}us", "--ieee-asserts=disable-at-0"],
+        plusargs=[f"--stop-time={int(stop_time_ms * 1000)}us", f"--ieee-asserts={ieee_asserts}"],
         parameters=parameters,
         extra_env=env,
         testcase=testcase,

@@ -1,0 +1,728 @@
+-- =================================================================================================
+-- Title    : canopen_host_regs
+-- Project  : canopen_master - open-source CANopen master IP core (MCP2510 over SPI)
+-- SPDX-License-Identifier: Apache-2.0
+-- =================================================================================================
+-- Module:
+--   Host register block: Avalon-MM slave (32-bit data, word addresses, fixed read latency 1,
+--   no waitrequest) and level-high interrupt sender.
+-- Purpose:
+--   The software view of the CANopen master (map: docs/register_map.md, generated with
+--   canopen_regs_pkg by scripts/regmap.py). It holds the configuration registers (SYNC, node
+--   supervision slots, SDO object and timeout), the interrupt flags and enables, and eleven
+--   32-bit saturating event counters; it turns writes into one-cycle command strobes (NMT,
+--   SDO start, re-init, clear, EMCY pop) with their fields, shows the status inputs of the
+--   other blocks, and passes the SDO_BUF window through to the SDO client's buffer RAM and the
+--   PDO_WIN window (C0h..FFh) to the PDO engine's register port.
+--   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
+--     avs_read_i by exactly one cycle for every address. SDO_BUF reads drive sdo_buf_addr_o in
+--     the read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in the next one.
+--     PDO_WIN reads likewise: pdo_addr_o in the read cycle, pdo_rdata_i selected in the next.
+--   * Byte enables: honoured by RW registers (only enabled bytes change) and by W1C/pulse bits
+--     (bits in disabled bytes count as 0). Command registers (NMT_CMD, SDO_CMD, EMCY_POP) act
+--     on any write and take every field from avs_writedata_i. The SDO_BUF port has no byte
+--     lanes: a window write with avs_byteenable_i /= "1111" is ignored (PDO_WIN: the same).
+--   * IRQ_STATUS: event strobes set the flags, writing 1 clears them; a flag set and cleared in
+--     the same cycle stays set (no event is lost). irq_o = OR(IRQ_STATUS and IRQ_ENABLE).
+--   * Counters: incremented by the cnt_*_i strobes (cnt_rx_overflow_i by its number of set
+--     bits), stop at FFFFFFFFh; CTRL.CLR_COUNTERS clears them (a clear wins over a strobe in
+--     the same cycle). CNT_BITS < 32 narrows them (saturating at 2**CNT_BITS - 1, read
+--     zero-extended) so that a bench can reach saturation; the register map says 32.
+-- =================================================================================================
+
+library ieee;
+    use ieee.std_logic_1164.all;
+    use ieee.numeric_std.all;
+
+library canopen_master;
+    use canopen_master.canopen_regs_pkg.all;
+
+entity canopen_host_regs is
+    generic (
+        MAX_NODES : positive range 1 to 16 := 8; -- supervised node slots (registers per slot)
+        CNT_BITS  : positive range 2 to 32 := 32 -- event counter width; < 32 only for benches
+    );
+    port (
+        -- clock and reset
+        clk_i   : in    std_logic; -- system clock
+        rst_n_i : in    std_logic; -- async reset, active low
+        -- Avalon-MM slave
+        avs_address_i       : in    std_logic_vector(7 downto 0);  -- word address
+        avs_read_i          : in    std_logic;                     -- read request
+        avs_write_i         : in    std_logic;                     -- write request
+        avs_writedata_i     : in    std_logic_vector(31 downto 0); -- write data
+        avs_byteenable_i    : in    std_logic_vector(3 downto 0);  -- byte lanes of a write
+        avs_readdata_o      : out   std_logic_vector(31 downto 0); -- read data
+        avs_readdatavalid_o : out   std_logic;                     -- read data valid (+1 cycle)
+        -- interrupt sender
+        irq_o : out   std_logic; -- level high: OR(IRQ_STATUS and IRQ_ENABLE)
+        -- master control and SYNC configuration
+        sync_en_o        : out   std_logic;                     -- CTRL.SYNC_EN
+        reinit_o         : out   std_logic;                     -- pulse: CTRL.REINIT
+        nmt_req_o        : out   std_logic;                     -- pulse: NMT_CMD written
+        nmt_cs_o         : out   std_logic_vector(7 downto 0);  -- NMT command specifier
+        nmt_node_o       : out   std_logic_vector(6 downto 0);  -- NMT node-ID, 0 = all
+        sync_period_us_o : out   std_logic_vector(31 downto 0); -- SYNC period [us], 0 = off
+        sync_overflow_o  : out   std_logic_vector(7 downto 0);  -- SYNC counter overflow
+        sync_window_us_o : out   std_logic_vector(31 downto 0); -- synchronous window [us]
+        -- node supervision configuration, slot k in bits (k+1)*w-1 .. k*w
+        node_cfg_node_o          : out   std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- id
+        node_cfg_mode_o          : out   std_logic_vector(2 * MAX_NODES - 1 downto 0);  -- mode
+        node_cfg_time_o          : out   std_logic_vector(16 * MAX_NODES - 1 downto 0); -- [ms]
+        node_cfg_life_o          : out   std_logic_vector(8 * MAX_NODES - 1 downto 0);  -- life
+        node_cfg_autostart_o     : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- flag
+        node_cfg_reset_on_loss_o : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- flag
+        node_clear_o             : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- pulse
+        -- EMCY FIFO control
+        emcy_clear_o : out   std_logic; -- pulse: clear the EMCY lost flag
+        emcy_pop_o   : out   std_logic; -- pulse: drop the EMCY FIFO head
+        -- SDO client request
+        sdo_req_o        : out   std_logic;                     -- pulse: start a transfer
+        sdo_upload_o     : out   std_logic;                     -- 1 upload, 0 download
+        sdo_node_o       : out   std_logic_vector(6 downto 0);  -- server node-ID
+        sdo_index_o      : out   std_logic_vector(15 downto 0); -- object index
+        sdo_subindex_o   : out   std_logic_vector(7 downto 0);  -- object sub-index
+        sdo_size_o       : out   std_logic_vector(10 downto 0); -- download size [bytes]
+        sdo_timeout_ms_o : out   std_logic_vector(15 downto 0); -- response timeout [ms]
+        sdo_cob_req_o    : out   std_logic_vector(10 downto 0); -- request COB-ID, 0 = default
+        sdo_cob_resp_o   : out   std_logic_vector(10 downto 0); -- response COB-ID, 0 = default
+        -- SDO client buffer port (RAM with registered read data)
+        sdo_buf_addr_o  : out   std_logic_vector(7 downto 0);  -- word address
+        sdo_buf_we_o    : out   std_logic;                     -- write enable
+        sdo_buf_wdata_o : out   std_logic_vector(31 downto 0); -- write data
+        sdo_buf_rdata_i : in    std_logic_vector(31 downto 0); -- read data (+1 cycle)
+        -- PDO engine register port (registered read data)
+        pdo_addr_o  : out   std_logic_vector(5 downto 0);  -- word offset in PDO_WIN
+        pdo_we_o    : out   std_logic;                     -- write enable
+        pdo_wdata_o : out   std_logic_vector(31 downto 0); -- write data
+        -- vsg_off port_012: default 0 keeps instances without the PDO engine elaborating
+        pdo_rdata_i : in    std_logic_vector(31 downto 0) := (others => '0'); -- read (+1)
+        -- vsg_on port_012
+        -- master and CAN controller status
+        fsm_state_i   : in    std_logic_vector(3 downto 0);  -- master FSM state
+        init_done_i   : in    std_logic;                     -- CAN controller running
+        init_fail_i   : in    std_logic;                     -- CAN controller init failed
+        ctrl_busy_i   : in    std_logic;                     -- CAN controller busy
+        tx_pending_i  : in    std_logic_vector(2 downto 0);  -- TX buffers pending
+        bus_off_i     : in    std_logic;                     -- bus-off
+        err_passive_i : in    std_logic;                     -- error passive
+        nmt_busy_i    : in    std_logic;                     -- NMT command being sent
+        sync_count_i  : in    std_logic_vector(31 downto 0); -- SYNC frames sent
+        time_us_i     : in    std_logic_vector(31 downto 0); -- free-running us counter
+        tec_i         : in    std_logic_vector(7 downto 0);  -- transmit error counter
+        rec_i         : in    std_logic_vector(7 downto 0);  -- receive error counter
+        eflg_i        : in    std_logic_vector(7 downto 0);  -- MCP2510 EFLG
+        -- node supervision status, slot k in bits (k+1)*w-1 .. k*w
+        node_nmt_i    : in    std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- NMT state
+        node_alive_i  : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- alive
+        node_lost_i   : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: lost
+        node_toggle_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: toggle
+        node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: boot-up
+        node_last_i   : in    std_logic_vector(32 * MAX_NODES - 1 downto 0); -- last msg [ms]
+        -- EMCY FIFO status (head)
+        emcy_count_i : in    std_logic_vector(6 downto 0);  -- messages in the FIFO
+        emcy_lost_i  : in    std_logic;                     -- sticky: a message was lost
+        emcy_node_i  : in    std_logic_vector(6 downto 0);  -- head: node-ID
+        emcy_data_i  : in    std_logic_vector(63 downto 0); -- head: bytes 0..7
+        emcy_time_i  : in    std_logic_vector(31 downto 0); -- head: time [ms]
+        -- SDO client status
+        sdo_busy_i       : in    std_logic;                     -- transfer running
+        sdo_error_i      : in    std_logic;                     -- last transfer aborted
+        sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code
+        sdo_abort_sent_i : in    std_logic;                     -- 1: the client aborted
+        sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred
+        -- interrupt events (one-cycle strobes)
+        ev_node_i        : in    std_logic; -- node event
+        ev_emcy_i        : in    std_logic; -- EMCY received
+        ev_sdo_done_i    : in    std_logic; -- SDO transfer finished
+        ev_can_error_i   : in    std_logic; -- CAN controller error
+        ev_sync_i        : in    std_logic; -- SYNC sent
+        ev_frame_error_i : in    std_logic; -- unexpected or malformed frame
+        ev_init_i        : in    std_logic; -- initialisation done or failed
+        -- counter increments (one-cycle strobes)
+        cnt_rx_frame_i    : in    std_logic;                    -- frame received
+        cnt_tx_frame_i    : in    std_logic;                    -- frame sent
+        cnt_unexpected_i  : in    std_logic;                    -- unexpected frame
+        cnt_malformed_i   : in    std_logic;                    -- malformed frame
+        cnt_rx_overflow_i : in    std_logic_vector(1 downto 0); -- frames lost (RXnOVR)
+        cnt_tx_error_i    : in    std_logic;                    -- transmit error
+        cnt_sdo_abort_i   : in    std_logic;                    -- SDO abort
+        cnt_hb_loss_i     : in    std_logic;                    -- heartbeat lost
+        cnt_guard_err_i   : in    std_logic;                    -- guarding error
+        cnt_can_error_i   : in    std_logic;                    -- CAN error interrupt
+        cnt_emcy_i        : in    std_logic                     -- EMCY received
+    );
+end entity canopen_host_regs;
+
+architecture rtl of canopen_host_regs is
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Elaboration-time configuration
+    -- ---------------------------------------------------------------------------------------------
+
+    function clog2 (n : positive) return natural is
+
+        variable bits : natural := 0;
+
+    begin
+
+        while 2 ** bits < n loop
+
+            bits := bits + 1;
+
+        end loop;
+
+        return bits;
+
+    end function clog2;
+
+    -- counters in address order, CNT_RX_FRAMES .. CNT_EMCY
+    constant cnt_num_c  : positive := REG_CNT_EMCY_C - REG_CNT_RX_FRAMES_C + 1;
+    constant irq_bits_c : positive := IRQ_STATUS_INIT_C + 1;
+    -- SDO_BUF window: low address bits select the word, high bits the window
+    constant buf_bits_c : natural := clog2(REG_SDO_BUF_WORDS_C);
+    constant buf_win_c  : natural := REG_SDO_BUF_C / REG_SDO_BUF_WORDS_C;
+    -- PDO_WIN window, decoded the same way
+    constant pdo_bits_c : natural := clog2(REG_PDO_WIN_WORDS_C);
+    constant pdo_win_c  : natural := REG_PDO_WIN_C / REG_PDO_WIN_WORDS_C;
+
+    function check_config return boolean is
+    begin
+
+        assert MAX_NODES <= REG_NODE_SLOTS_MAX_C
+            report "canopen_host_regs: MAX_NODES = " & integer'image(MAX_NODES)
+                   & " above the register map's " & integer'image(REG_NODE_SLOTS_MAX_C)
+                   & " node slots"
+            severity failure;
+        assert cnt_num_c = 11
+            report "canopen_host_regs: CNT_RX_FRAMES .. CNT_EMCY are not 11 consecutive words"
+            severity failure;
+        assert 2 ** buf_bits_c = REG_SDO_BUF_WORDS_C and REG_SDO_BUF_C mod REG_SDO_BUF_WORDS_C = 0
+            report "canopen_host_regs: SDO_BUF window not a power of two aligned to its size"
+            severity failure;
+        assert 2 ** pdo_bits_c = REG_PDO_WIN_WORDS_C and pdo_bits_c = 6
+               and REG_PDO_WIN_C mod REG_PDO_WIN_WORDS_C = 0
+            report "canopen_host_regs: PDO_WIN window is not 64 words aligned to its size"
+            severity failure;
+        report "canopen_host_regs: MAX_NODES = " & integer'image(MAX_NODES)
+               & ", CNT_BITS = " & integer'image(CNT_BITS)
+               & ", node registers at word " & integer'image(REG_NODE_CFG_C) & " .. "
+               & integer'image(REG_NODE_CFG_C + MAX_NODES * REG_NODE_STRIDE_C - 1)
+            severity note;
+        return true;
+
+    end function check_config;
+
+    constant config_ok_c : boolean := check_config;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Helpers
+    -- ---------------------------------------------------------------------------------------------
+
+    -- address compare without arithmetic (no numeric_std warnings on an undriven bus)
+
+    function addr_is (addr : std_logic_vector; n : natural) return boolean is
+    begin
+
+        return addr = std_logic_vector(to_unsigned(n, addr'length));
+
+    end function addr_is;
+
+    -- a register word holding val in bits hi..lo (a width mismatch stops the simulation)
+
+    function at (val : std_logic_vector; hi : natural; lo : natural) return std_logic_vector is
+
+        variable w : std_logic_vector(31 downto 0);
+
+    begin
+
+        w               := (others => '0');
+        w(hi downto lo) := val;
+        return w;
+
+    end function at;
+
+    function at (val : std_logic; pos : natural) return std_logic_vector is
+
+        variable w : std_logic_vector(31 downto 0);
+
+    begin
+
+        w      := (others => '0');
+        w(pos) := val;
+        return w;
+
+    end function at;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Signals
+    -- ---------------------------------------------------------------------------------------------
+
+    -- byte enables expanded to bits
+    signal be_bits : std_logic_vector(31 downto 0);
+    -- W1C and pulse bits: the write data with disabled bytes forced to 0
+    signal wr_ones : std_logic_vector(31 downto 0);
+    -- RW registers: the addressed register's word with the enabled bytes replaced
+    signal wr_merge : std_logic_vector(31 downto 0);
+    -- the bus address is inside the SDO_BUF window
+    signal buf_sel : std_logic;
+    -- the bus address is inside the PDO_WIN window
+    signal pdo_sel : std_logic;
+
+    -- node slot registers
+
+    type slot_id_t is array (0 to MAX_NODES - 1) of std_logic_vector(6 downto 0);
+
+    type slot_mode_t is array (0 to MAX_NODES - 1) of std_logic_vector(1 downto 0);
+
+    type slot_time_t is array (0 to MAX_NODES - 1) of std_logic_vector(15 downto 0);
+
+    type slot_life_t is array (0 to MAX_NODES - 1) of std_logic_vector(7 downto 0);
+
+    -- RW registers
+    signal sync_en        : std_logic;
+    signal irq_enable     : std_logic_vector(irq_bits_c - 1 downto 0);
+    signal sync_period    : std_logic_vector(31 downto 0);
+    signal sync_overflow  : std_logic_vector(7 downto 0);
+    signal sync_window    : std_logic_vector(31 downto 0);
+    signal node_id        : slot_id_t;
+    signal node_mode      : slot_mode_t;
+    signal node_time      : slot_time_t;
+    signal node_life      : slot_life_t;
+    signal node_autostart : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal node_rst_loss  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal sdo_index      : std_logic_vector(15 downto 0);
+    signal sdo_subindex   : std_logic_vector(7 downto 0);
+    signal sdo_timeout    : std_logic_vector(15 downto 0);
+    signal sdo_cob_req    : std_logic_vector(10 downto 0);
+    signal sdo_cob_resp   : std_logic_vector(10 downto 0);
+
+    -- interrupt flags (W1C) and the sticky SDO done flag
+    signal irq_status : std_logic_vector(irq_bits_c - 1 downto 0);
+    signal sdo_done   : std_logic;
+
+    -- event counters, counter i (word REG_CNT_RX_FRAMES_C + i) in bits
+    -- CNT_BITS * (i + 1) - 1 .. CNT_BITS * i
+    signal cnt : std_logic_vector(CNT_BITS * cnt_num_c - 1 downto 0);
+    -- CTRL.CLR_COUNTERS written in this cycle
+    signal cnt_clear : std_logic;
+
+    -- registered read data: multiplexer output, its register, SDO_BUF selected, valid
+    signal rd_mux   : std_logic_vector(31 downto 0);
+    signal rd_data  : std_logic_vector(31 downto 0);
+    signal rd_buf   : std_logic;
+    signal rd_valid : std_logic;
+    -- PDO_WIN read: pdo_rdata_i selected
+    signal rd_pdo : std_logic;
+
+begin
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Write data qualification
+    -- ---------------------------------------------------------------------------------------------
+
+    be_bits_gen : for b in 0 to 3 generate
+        be_bits(8 * b + 7 downto 8 * b) <= (others => avs_byteenable_i(b));
+    end generate be_bits_gen;
+
+    wr_ones  <= avs_writedata_i and be_bits;
+    wr_merge <= wr_ones or (rd_mux and not be_bits);
+
+    buf_sel <= '1' when addr_is(avs_address_i(7 downto buf_bits_c), buf_win_c) else
+               '0';
+    pdo_sel <= '1' when addr_is(avs_address_i(7 downto pdo_bits_c), pdo_win_c) else
+               '0';
+
+    cnt_clear <= '1' when avs_write_i = '1' and addr_is(avs_address_i, REG_CTRL_C)
+                          and wr_ones(CTRL_CLR_COUNTERS_C) = '1' else
+                 '0';
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Configuration registers, flags and command strobes
+    -- ---------------------------------------------------------------------------------------------
+    regs_proc : process (clk_i, rst_n_i) is
+
+        variable ev_v : std_logic_vector(irq_bits_c - 1 downto 0);
+
+    begin
+
+        if rst_n_i = '0' then
+            sync_en        <= '0';
+            irq_enable     <= (others => '0');
+            irq_status     <= (others => '0');
+            sync_period    <= (others => '0');
+            sync_overflow  <= (others => '0');
+            sync_window    <= (others => '0');
+            node_id        <= (others => (others => '0'));
+            node_mode      <= (others => (others => '0'));
+            node_time      <= (others => (others => '0'));
+            node_life      <= (others => (others => '0'));
+            node_autostart <= (others => '0');
+            node_rst_loss  <= (others => '0');
+            sdo_index      <= (others => '0');
+            sdo_subindex   <= (others => '0');
+            sdo_timeout    <= SDO_TIMEOUT_MS_RESET_C(sdo_timeout'range);
+            sdo_cob_req    <= (others => '0');
+            sdo_cob_resp   <= (others => '0');
+            sdo_done       <= '0';
+            reinit_o       <= '0';
+            nmt_req_o      <= '0';
+            node_clear_o   <= (others => '0');
+            emcy_clear_o   <= '0';
+            emcy_pop_o     <= '0';
+            sdo_req_o      <= '0';
+        elsif rising_edge(clk_i) then
+            -- strobes
+            reinit_o     <= '0';
+            nmt_req_o    <= '0';
+            node_clear_o <= (others => '0');
+            emcy_clear_o <= '0';
+            emcy_pop_o   <= '0';
+            sdo_req_o    <= '0';
+
+            -- interrupt flags: clear by writing 1, an event in the same cycle wins
+            ev_v                           := (others => '0');
+            ev_v(IRQ_STATUS_NODE_C)        := ev_node_i;
+            ev_v(IRQ_STATUS_EMCY_C)        := ev_emcy_i;
+            ev_v(IRQ_STATUS_SDO_DONE_C)    := ev_sdo_done_i;
+            ev_v(IRQ_STATUS_CAN_ERROR_C)   := ev_can_error_i;
+            ev_v(IRQ_STATUS_SYNC_C)        := ev_sync_i;
+            ev_v(IRQ_STATUS_FRAME_ERROR_C) := ev_frame_error_i;
+            ev_v(IRQ_STATUS_INIT_C)        := ev_init_i;
+            if avs_write_i = '1' and addr_is(avs_address_i, REG_IRQ_STATUS_C) then
+                irq_status <= (irq_status and not wr_ones(irq_status'range)) or ev_v;
+            else
+                irq_status <= irq_status or ev_v;
+            end if;
+
+            -- SDO done: set by the done event, cleared by the next start
+            if ev_sdo_done_i = '1' then
+                sdo_done <= '1';
+            end if;
+
+            if avs_write_i = '1' then
+                if addr_is(avs_address_i, REG_CTRL_C) then
+                    sync_en  <= wr_merge(CTRL_SYNC_EN_C);
+                    reinit_o <= wr_ones(CTRL_REINIT_C);
+                end if;
+                if addr_is(avs_address_i, REG_IRQ_ENABLE_C) then
+                    irq_enable <= wr_merge(irq_enable'range);
+                end if;
+                if addr_is(avs_address_i, REG_NMT_CMD_C) then
+                    nmt_req_o <= '1';
+                end if;
+                if addr_is(avs_address_i, REG_SYNC_PERIOD_US_C) then
+                    sync_period <= wr_merge(SYNC_PERIOD_US_VALUE_HI_C downto
+                                            SYNC_PERIOD_US_VALUE_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_SYNC_OVERFLOW_C) then
+                    sync_overflow <= wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
+                                              SYNC_OVERFLOW_VALUE_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_SYNC_WINDOW_US_C) then
+                    sync_window <= wr_merge(SYNC_WINDOW_US_VALUE_HI_C downto
+                                            SYNC_WINDOW_US_VALUE_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_EMCY_STATUS_C) then
+                    emcy_clear_o <= wr_ones(EMCY_STATUS_LOST_C);
+                end if;
+                if addr_is(avs_address_i, REG_EMCY_POP_C) then
+                    emcy_pop_o <= '1';
+                end if;
+                if addr_is(avs_address_i, REG_SDO_OBJ_C) then
+                    sdo_index    <= wr_merge(SDO_OBJ_INDEX_HI_C downto SDO_OBJ_INDEX_LO_C);
+                    sdo_subindex <= wr_merge(SDO_OBJ_SUBINDEX_HI_C downto SDO_OBJ_SUBINDEX_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_SDO_CMD_C) then
+                    sdo_req_o <= '1';
+                    sdo_done  <= '0';
+                end if;
+                if addr_is(avs_address_i, REG_SDO_TIMEOUT_MS_C) then
+                    sdo_timeout <= wr_merge(SDO_TIMEOUT_MS_VALUE_HI_C downto
+                                            SDO_TIMEOUT_MS_VALUE_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_SDO_COB_C) then
+                    sdo_cob_req  <= wr_merge(SDO_COB_REQUEST_HI_C downto SDO_COB_REQUEST_LO_C);
+                    sdo_cob_resp <= wr_merge(SDO_COB_RESPONSE_HI_C downto SDO_COB_RESPONSE_LO_C);
+                end if;
+
+                -- node slots (static indices)
+                for k in 0 to MAX_NODES - 1 loop
+
+                    if addr_is(avs_address_i, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C) then
+                        node_id(k)        <= wr_merge(NODE_CFG_NODE_ID_HI_C downto
+                                                      NODE_CFG_NODE_ID_LO_C);
+                        node_mode(k)      <= wr_merge(NODE_CFG_MODE_HI_C downto NODE_CFG_MODE_LO_C);
+                        node_autostart(k) <= wr_merge(NODE_CFG_AUTOSTART_C);
+                        node_rst_loss(k)  <= wr_merge(NODE_CFG_RESET_ON_LOSS_C);
+                    end if;
+                    if addr_is(avs_address_i, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
+                        node_time(k) <= wr_merge(NODE_TIME_TIME_MS_HI_C downto
+                                                 NODE_TIME_TIME_MS_LO_C);
+                        node_life(k) <= wr_merge(NODE_TIME_LIFE_FACTOR_HI_C downto
+                                                 NODE_TIME_LIFE_FACTOR_LO_C);
+                    end if;
+                    if addr_is(avs_address_i, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
+                        node_clear_o(k) <= wr_ones(NODE_STATUS_LOST_C)
+                                           or wr_ones(NODE_STATUS_TOGGLE_ERR_C)
+                                           or wr_ones(NODE_STATUS_BOOTUP_C);
+                    end if;
+
+                end loop;
+
+            end if;
+        end if;
+
+    end process regs_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Command fields: datapath, qualified by nmt_req_o / sdo_req_o (no reset)
+    -- ---------------------------------------------------------------------------------------------
+    cmd_data_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if avs_write_i = '1' and addr_is(avs_address_i, REG_NMT_CMD_C) then
+                nmt_cs_o   <= avs_writedata_i(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
+                nmt_node_o <= avs_writedata_i(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
+            end if;
+            if avs_write_i = '1' and addr_is(avs_address_i, REG_SDO_CMD_C) then
+                sdo_node_o   <= avs_writedata_i(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
+                sdo_upload_o <= avs_writedata_i(SDO_CMD_UPLOAD_C);
+                sdo_size_o   <= avs_writedata_i(SDO_CMD_SIZE_HI_C downto SDO_CMD_SIZE_LO_C);
+            end if;
+        end if;
+
+    end process cmd_data_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Event counters: saturating, cleared by CTRL.CLR_COUNTERS
+    -- ---------------------------------------------------------------------------------------------
+    cnt_proc : process (clk_i, rst_n_i) is
+
+        -- one saturating step
+
+        function sat_inc (c : unsigned) return unsigned is
+        begin
+
+            if c = (c'range => '1') then
+                return c;
+            end if;
+
+            return c + 1;
+
+        end function sat_inc;
+
+        variable inc_v : std_logic_vector(cnt_num_c - 1 downto 0);
+        variable cnt_v : unsigned(CNT_BITS - 1 downto 0);
+
+    begin
+
+        if rst_n_i = '0' then
+            cnt <= (others => '0');
+        elsif rising_edge(clk_i) then
+            -- bit i: strobe of counter i (word REG_CNT_RX_FRAMES_C + i)
+            inc_v := cnt_emcy_i & cnt_can_error_i & cnt_guard_err_i & cnt_hb_loss_i
+                     & cnt_sdo_abort_i & cnt_tx_error_i
+                     & (cnt_rx_overflow_i(1) or cnt_rx_overflow_i(0))
+                     & cnt_malformed_i & cnt_unexpected_i & cnt_tx_frame_i & cnt_rx_frame_i;
+
+            for i in 0 to cnt_num_c - 1 loop
+
+                cnt_v := unsigned(cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i));
+                if cnt_clear = '1' then
+                    cnt_v := (others => '0');
+                elsif inc_v(i) = '1' then
+                    cnt_v := sat_inc(cnt_v);
+                    -- cnt_rx_overflow_i = "11": two frames lost in one cycle
+                    if i = REG_CNT_RX_OVERFLOW_C - REG_CNT_RX_FRAMES_C
+                       and cnt_rx_overflow_i = "11" then
+                        cnt_v := sat_inc(cnt_v);
+                    end if;
+                end if;
+                cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i) <= std_logic_vector(cnt_v);
+
+            end loop;
+
+        end if;
+
+    end process cnt_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Read multiplexer: OR of the words whose (disjoint) address matches; registered below
+    -- ---------------------------------------------------------------------------------------------
+    read_mux_proc : process (all) is
+
+        -- the address is copied to a variable so that process (all) is sensitive to it
+        variable a : std_logic_vector(7 downto 0);
+        variable v : std_logic_vector(31 downto 0);
+
+        procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
+        begin
+
+            if addr_is(a, n) then
+                v := v or word;
+            end if;
+
+        end procedure put;
+
+    begin
+
+        a := avs_address_i;
+        v := (others => '0');
+
+        put(REG_ID_C, ID_RESET_C);
+        put(REG_VERSION_C, VERSION_RESET_C);
+        put(REG_CTRL_C, at(sync_en, CTRL_SYNC_EN_C));
+        put(REG_STATUS_C,
+            at(fsm_state_i, STATUS_FSM_STATE_HI_C, STATUS_FSM_STATE_LO_C)
+            or at(init_done_i, STATUS_INIT_DONE_C) or at(init_fail_i, STATUS_INIT_FAIL_C)
+            or at(ctrl_busy_i, STATUS_CTRL_BUSY_C)
+            or at(tx_pending_i, STATUS_TX_PENDING_HI_C, STATUS_TX_PENDING_LO_C)
+            or at(bus_off_i, STATUS_BUS_OFF_C) or at(err_passive_i, STATUS_ERR_PASSIVE_C));
+        put(REG_IRQ_STATUS_C, at(irq_status, irq_bits_c - 1, 0));
+        put(REG_IRQ_ENABLE_C, at(irq_enable, irq_bits_c - 1, 0));
+        put(REG_NMT_CMD_C, at(nmt_busy_i, NMT_CMD_NMT_BUSY_C));
+        put(REG_SYNC_PERIOD_US_C, sync_period);
+        put(REG_SYNC_OVERFLOW_C,
+            at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C));
+        put(REG_SYNC_WINDOW_US_C, sync_window);
+        put(REG_SYNC_COUNT_C, sync_count_i);
+        put(REG_TIME_US_C, time_us_i);
+        put(REG_CAN_STATUS_C,
+            at(tec_i, CAN_STATUS_TEC_HI_C, CAN_STATUS_TEC_LO_C)
+            or at(rec_i, CAN_STATUS_REC_HI_C, CAN_STATUS_REC_LO_C)
+            or at(eflg_i, CAN_STATUS_EFLG_HI_C, CAN_STATUS_EFLG_LO_C));
+
+        for i in 0 to cnt_num_c - 1 loop
+
+            put(REG_CNT_RX_FRAMES_C + i,
+                at(cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i), CNT_BITS - 1, 0));
+
+        end loop;
+
+        for k in 0 to MAX_NODES - 1 loop
+
+            put(REG_NODE_CFG_C + k * REG_NODE_STRIDE_C,
+                at(node_id(k), NODE_CFG_NODE_ID_HI_C, NODE_CFG_NODE_ID_LO_C)
+                or at(node_mode(k), NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C)
+                or at(node_autostart(k), NODE_CFG_AUTOSTART_C)
+                or at(node_rst_loss(k), NODE_CFG_RESET_ON_LOSS_C));
+            put(REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
+                at(node_time(k), NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C)
+                or at(node_life(k), NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C));
+            put(REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
+                at(node_nmt_i(7 * k + 6 downto 7 * k),
+                      NODE_STATUS_NMT_STATE_HI_C, NODE_STATUS_NMT_STATE_LO_C)
+                or at(node_alive_i(k), NODE_STATUS_ALIVE_C)
+                or at(node_lost_i(k), NODE_STATUS_LOST_C)
+                or at(node_toggle_i(k), NODE_STATUS_TOGGLE_ERR_C)
+                or at(node_bootup_i(k), NODE_STATUS_BOOTUP_C));
+            put(REG_NODE_LAST_MS_C + k * REG_NODE_STRIDE_C, node_last_i(32 * k + 31 downto 32 * k));
+
+        end loop;
+
+        put(REG_EMCY_STATUS_C,
+            at(emcy_count_i, EMCY_STATUS_COUNT_HI_C, EMCY_STATUS_COUNT_LO_C)
+            or at(emcy_lost_i, EMCY_STATUS_LOST_C));
+        put(REG_EMCY_NODE_C, at(emcy_node_i, EMCY_NODE_NODE_HI_C, EMCY_NODE_NODE_LO_C));
+        put(REG_EMCY_DATA_LO_C, emcy_data_i(31 downto 0));
+        put(REG_EMCY_DATA_HI_C, emcy_data_i(63 downto 32));
+        put(REG_EMCY_TIME_MS_C, emcy_time_i);
+        put(REG_SDO_OBJ_C,
+            at(sdo_index, SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
+            or at(sdo_subindex, SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C));
+        put(REG_SDO_CMD_C,
+            at(sdo_busy_i, SDO_CMD_BUSY_C) or at(sdo_done, SDO_CMD_DONE_C)
+            or at(sdo_error_i, SDO_CMD_ERROR_C)
+            or at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
+            or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C));
+        put(REG_SDO_ABORT_C, sdo_abort_code_i);
+        put(REG_SDO_TIMEOUT_MS_C,
+            at(sdo_timeout, SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C));
+        put(REG_SDO_COB_C,
+            at(sdo_cob_req, SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
+            or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
+
+        rd_mux <= v;
+
+    end process read_mux_proc;
+
+    -- read data register: datapath, qualified by rd_valid (no reset)
+    rd_data_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if avs_read_i = '1' then
+                rd_data <= rd_mux;
+            end if;
+        end if;
+
+    end process rd_data_proc;
+
+    rd_ctrl_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            rd_valid <= '0';
+            rd_buf   <= '0';
+            rd_pdo   <= '0';
+        elsif rising_edge(clk_i) then
+            rd_valid <= avs_read_i;
+            if avs_read_i = '1' then
+                rd_buf <= buf_sel;
+                rd_pdo <= pdo_sel;
+            end if;
+        end if;
+
+    end process rd_ctrl_proc;
+
+    avs_readdata_o      <= sdo_buf_rdata_i when rd_buf = '1' else
+                           pdo_rdata_i when rd_pdo = '1' else
+                           rd_data;
+    avs_readdatavalid_o <= rd_valid;
+
+    irq_o <= '1' when (irq_status and irq_enable) /= (irq_status'range => '0') else
+             '0';
+
+    -- ---------------------------------------------------------------------------------------------
+    -- SDO_BUF pass-through (the RAM registers its read data: one cycle, like every register)
+    -- ---------------------------------------------------------------------------------------------
+    sdo_buf_addr_o  <= std_logic_vector(resize(unsigned(avs_address_i(buf_bits_c - 1 downto 0)),
+                                               sdo_buf_addr_o'length));
+    sdo_buf_we_o    <= avs_write_i and buf_sel when avs_byteenable_i = "1111" else
+                       '0';
+    sdo_buf_wdata_o <= avs_writedata_i;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- PDO_WIN pass-through (the engine registers its read data: one cycle, like every register)
+    -- ---------------------------------------------------------------------------------------------
+    pdo_addr_o  <= avs_address_i(pdo_bits_c - 1 downto 0);
+    pdo_we_o    <= avs_write_i and pdo_sel when avs_byteenable_i = "1111" else
+                   '0';
+    pdo_wdata_o <= avs_writedata_i;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Configuration outputs
+    -- ---------------------------------------------------------------------------------------------
+
+    slot_out_gen : for k in 0 to MAX_NODES - 1 generate
+        node_cfg_node_o(7 * k + 6 downto 7 * k)    <= node_id(k);
+        node_cfg_mode_o(2 * k + 1 downto 2 * k)    <= node_mode(k);
+        node_cfg_time_o(16 * k + 15 downto 16 * k) <= node_time(k);
+        node_cfg_life_o(8 * k + 7 downto 8 * k)    <= node_life(k);
+    end generate slot_out_gen;
+
+    sync_en_o                <= sync_en;
+    sync_period_us_o         <= sync_period;
+    sync_overflow_o          <= sync_overflow;
+    sync_window_us_o         <= sync_window;
+    node_cfg_autostart_o     <= node_autostart;
+    node_cfg_reset_on_loss_o <= node_rst_loss;
+    sdo_index_o              <= sdo_index;
+    sdo_subindex_o           <= sdo_subindex;
+    sdo_timeout_ms_o         <= sdo_timeout;
+    sdo_cob_req_o            <= sdo_cob_req;
+    sdo_cob_resp_o           <= sdo_cob_resp;
+
+end architecture rtl;

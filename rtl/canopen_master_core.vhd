@@ -1,0 +1,927 @@
+-- =================================================================================================
+-- Title    : canopen_master_core
+-- Project  : canopen_master - open-source CANopen master IP core (MCP2510 over SPI)
+-- SPDX-License-Identifier: Apache-2.0
+-- =================================================================================================
+-- Module:
+--   The CANopen master core: host registers, the 14-state FSM, the services and the datapath
+--   around the FSM. It talks to the MCP2510 only through mcp2510_ctrl's frame interface.
+-- Purpose:
+--   * canopen_host_regs: Avalon-MM slave and interrupt (register map: docs/register_map.md).
+--   * canopen_master_fsm: the scheduler (St0..St13, docs/fsm.md). Every condition it sees is
+--     computed here; every action it asks for (its Moore state outputs) is carried out here.
+--   * canopen_sdo_client (St6/St9), canopen_node_monitor (St7/St10: heartbeat, guarding,
+--     boot-up, EMCY).
+--   * Datapath (this file): timebase (us/ms), SYNC producer, Receive_Data register and COB-ID
+--     classifier (St3/St4), generation-source selection and Transmit_Data with the TX buffer
+--     plan (St8..St11), the controller request (St12), error latch (St13), state watchdog
+--     (bounded waits), controller re-initialisation (St0), event and counter strobes.
+--   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
+--   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
+--   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation is only dispatched when its buffer is
+--   free, so St12 never waits behind a pending transmission.
+--   PDO processing (St5) and PDO generation (St8) are where the PDO engine attaches (issue 6);
+--   until then received PDOs are counted and acknowledged in St5 and no PDO is generated.
+-- =================================================================================================
+
+library ieee;
+    use ieee.std_logic_1164.all;
+    use ieee.numeric_std.all;
+
+library canopen_master;
+    use canopen_master.canopen_pkg.all;
+    use canopen_master.canopen_master_pkg.all;
+
+entity canopen_master_core is
+    generic (
+        CLK_FREQ_HZ       : positive               := 50_000_000; -- clk_i frequency [Hz]
+        MAX_NODES         : positive range 1 to 16 := 8;          -- monitored node slots
+        EMCY_DEPTH        : positive range 2 to 64 := 8;          -- EMCY FIFO entries
+        SDO_BUF_BYTES     : positive               := 256;        -- SDO transfer buffer [bytes]
+        WATCHDOG_US       : positive               := 20_000;     -- longest wait in one state
+        REINIT_BACKOFF_MS : positive               := 100;        -- between init attempts
+        STATUS_POLL_MS    : positive               := 10          -- TEC/REC/EFLG refresh period
+    );
+    port (
+        -- clock and reset
+        clk_i   : in    std_logic; -- system clock
+        rst_n_i : in    std_logic; -- async reset, active low (synchronised release)
+        -- host: Avalon-MM slave, word addressing, read latency 1
+        avs_address_i       : in    std_logic_vector(7 downto 0);  -- word address
+        avs_read_i          : in    std_logic;                     -- read strobe
+        avs_write_i         : in    std_logic;                     -- write strobe
+        avs_writedata_i     : in    std_logic_vector(31 downto 0); -- write data
+        avs_byteenable_i    : in    std_logic_vector(3 downto 0);  -- byte enables
+        avs_readdata_o      : out   std_logic_vector(31 downto 0); -- read data
+        avs_readdatavalid_o : out   std_logic;                     -- read data valid
+        irq_o               : out   std_logic;                     -- interrupt, active high
+        -- debug
+        fsm_state_o : out   std_logic_vector(3 downto 0); -- FSM state (St number)
+        -- mcp2510_ctrl: control and status
+        ctl_reinit_o     : out   std_logic;                    -- pulse: re-initialise
+        ctl_init_done_i  : in    std_logic;                    -- chip in normal mode
+        ctl_init_fail_i  : in    std_logic;                    -- initialisation failed
+        ctl_busy_i       : in    std_logic;                    -- SPI sequence running
+        ctl_status_req_o : out   std_logic;                    -- pulse: read TEC/REC/EFLG
+        ctl_status_ok_i  : in    std_logic;                    -- strobe: snapshot updated
+        ctl_tec_i        : in    std_logic_vector(7 downto 0); -- snapshot TEC
+        ctl_rec_i        : in    std_logic_vector(7 downto 0); -- snapshot REC
+        ctl_eflg_i       : in    std_logic_vector(7 downto 0); -- snapshot EFLG
+        -- mcp2510_ctrl: transmit
+        ctl_tx_valid_o   : out   std_logic;                     -- request
+        ctl_tx_ready_i   : in    std_logic;                     -- request taken
+        ctl_tx_buf_o     : out   std_logic_vector(1 downto 0);  -- TX buffer
+        ctl_tx_txp_o     : out   std_logic_vector(1 downto 0);  -- priority
+        ctl_tx_send_o    : out   std_logic;                     -- RTS after load
+        ctl_tx_id_o      : out   std_logic_vector(28 downto 0); -- identifier
+        ctl_tx_rtr_o     : out   std_logic;                     -- remote frame
+        ctl_tx_dlc_o     : out   std_logic_vector(3 downto 0);  -- DLC
+        ctl_tx_data_o    : out   std_logic_vector(63 downto 0); -- data
+        ctl_tx_fire_o    : out   std_logic_vector(2 downto 0);  -- pulse: TXnRTS
+        ctl_tx_loaded_i  : in    std_logic;                     -- strobe: executed
+        ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
+        ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
+        ctl_tx_err_i     : in    std_logic_vector(2 downto 0);  -- strobe: TXERR
+        -- mcp2510_ctrl: receive
+        ctl_rx_valid_i : in    std_logic;                     -- FIFO head valid
+        ctl_rx_ready_o : out   std_logic;                     -- pop
+        ctl_rx_id_i    : in    std_logic_vector(28 downto 0); -- identifier
+        ctl_rx_ide_i   : in    std_logic;                     -- extended
+        ctl_rx_rtr_i   : in    std_logic;                     -- remote frame
+        ctl_rx_dlc_i   : in    std_logic_vector(3 downto 0);  -- DLC
+        ctl_rx_data_i  : in    std_logic_vector(63 downto 0); -- data
+        -- mcp2510_ctrl: interrupts
+        ctl_int_valid_i   : in    std_logic;                    -- strobe: INT handled
+        ctl_int_canintf_i : in    std_logic_vector(7 downto 0); -- CANINTF
+        ctl_int_eflg_i    : in    std_logic_vector(7 downto 0); -- EFLG
+        ctl_rx_overflow_i : in    std_logic_vector(1 downto 0)  -- strobe: frame lost
+    );
+end entity canopen_master_core;
+
+architecture rtl of canopen_master_core is
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Timing constants
+    -- ---------------------------------------------------------------------------------------------
+    constant cycles_per_us_c : positive := (CLK_FREQ_HZ + 999_999) / 1_000_000;
+    constant backoff_us_c    : positive := 1000 * REINIT_BACKOFF_MS;
+
+    function check_config return boolean is
+    begin
+
+        assert CLK_FREQ_HZ mod 1_000_000 = 0
+            report "canopen_master: CLK_FREQ_HZ must be a whole number of MHz for exact us timing"
+            severity failure;
+        return true;
+
+    end function check_config;
+
+    constant config_ok_c : boolean := check_config;
+
+    -- MCP2510 buffer plan (see the header)
+    constant txb_pdo_c  : std_logic_vector(1 downto 0) := "00";
+    constant txb_cmd_c  : std_logic_vector(1 downto 0) := "01";
+    constant txb_sync_c : std_logic_vector(1 downto 0) := "10";
+    -- EFLG bits
+    constant eflg_txbo_c  : natural                      := 5;
+    constant eflg_any_c   : std_logic_vector(7 downto 0) := x"3F";
+    constant intf_errif_c : natural                      := 5;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Host register block interface
+    -- ---------------------------------------------------------------------------------------------
+    signal sync_en        : std_logic;
+    signal host_reinit    : std_logic;
+    signal nmt_req        : std_logic;
+    signal nmt_cs         : std_logic_vector(7 downto 0);
+    signal nmt_node       : std_logic_vector(6 downto 0);
+    signal sync_period_us : std_logic_vector(31 downto 0);
+    signal sync_overflow  : std_logic_vector(7 downto 0);
+    signal sync_window_us : std_logic_vector(31 downto 0);
+    signal cfg_node       : std_logic_vector(7 * MAX_NODES - 1 downto 0);
+    signal cfg_mode       : std_logic_vector(2 * MAX_NODES - 1 downto 0);
+    signal cfg_time       : std_logic_vector(16 * MAX_NODES - 1 downto 0);
+    signal cfg_life       : std_logic_vector(8 * MAX_NODES - 1 downto 0);
+    signal cfg_autostart  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal cfg_reset_loss : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal node_clear     : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal emcy_clear     : std_logic;
+    signal emcy_pop       : std_logic;
+    signal sdo_req        : std_logic;
+    signal sdo_upload     : std_logic;
+    signal sdo_node       : std_logic_vector(6 downto 0);
+    signal sdo_index      : std_logic_vector(15 downto 0);
+    signal sdo_subindex   : std_logic_vector(7 downto 0);
+    signal sdo_size       : std_logic_vector(10 downto 0);
+    signal sdo_timeout_ms : std_logic_vector(15 downto 0);
+    signal sdo_cob_req    : std_logic_vector(10 downto 0);
+    signal sdo_cob_resp   : std_logic_vector(10 downto 0);
+    signal sdo_buf_addr   : std_logic_vector(7 downto 0);
+    signal sdo_buf_we     : std_logic;
+    signal sdo_buf_wdata  : std_logic_vector(31 downto 0);
+    signal sdo_buf_rdata  : std_logic_vector(31 downto 0);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- FSM interface
+    -- ---------------------------------------------------------------------------------------------
+    signal fsm_state    : std_logic_vector(3 downto 0);
+    signal state_change : std_logic;
+    signal in_init      : std_logic;
+    signal in_sync_gen  : std_logic;
+    signal in_rx        : std_logic;
+    signal in_parse     : std_logic;
+    signal in_pdo_proc  : std_logic;
+    signal in_sdo_proc  : std_logic;
+    signal in_nmt_proc  : std_logic;
+    signal in_pdo_gen   : std_logic;
+    signal in_sdo_gen   : std_logic;
+    signal in_nmt_gen   : std_logic;
+    signal in_encap     : std_logic;
+    signal in_tx        : std_logic;
+    signal in_error     : std_logic;
+    signal err_pending  : std_logic;
+    signal sync_due     : std_logic;
+    signal nmt_gen_req  : std_logic;
+    signal sdo_gen_req  : std_logic;
+    signal pdo_gen_req  : std_logic;
+    signal rx_head_ok   : std_logic;
+    signal cls_pdo      : std_logic;
+    signal cls_sdo      : std_logic;
+    signal cls_nmt      : std_logic;
+    signal pdo_done     : std_logic;
+    signal frame_ready  : std_logic;
+    signal encap_ok     : std_logic;
+    signal err_fatal    : std_logic;
+    signal err_nmt      : std_logic;
+    signal watchdog     : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Datapath registers
+    -- ---------------------------------------------------------------------------------------------
+    -- timebase
+    signal us_div  : natural range 0 to cycles_per_us_c - 1;
+    signal tick_us : std_logic;
+    signal tick_ms : std_logic;
+    signal ms_div  : natural range 0 to 999;
+    signal time_us : unsigned(31 downto 0);
+    signal time_ms : unsigned(31 downto 0);
+    -- Receive_Data (thesis: 13-byte frame register filled in St3)
+    signal rx_frame : can_frame_t;
+    -- Transmit_Data (thesis: frame register filled in St11) and its buffer plan
+    signal tx_frame     : can_frame_t;
+    signal tx_buf       : std_logic_vector(1 downto 0);
+    signal tx_txp       : std_logic_vector(1 downto 0);
+    signal tx_send      : std_logic;
+    signal tx_requested : std_logic;
+    -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
+    signal gen_src : natural range 0 to 4;
+    -- host NMT command waiting
+    signal nmt_pending  : std_logic;
+    signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
+    signal nmt_cmd_node : std_logic_vector(6 downto 0);
+    -- SYNC producer
+    signal sync_timer   : unsigned(31 downto 0);
+    signal sync_loaded  : std_logic;
+    signal sync_late    : std_logic;
+    signal sync_counter : unsigned(7 downto 0);
+    signal sync_count   : unsigned(31 downto 0);
+    signal sync_fire    : std_logic;
+    -- error latch (St13)
+    signal err_can    : std_logic;
+    signal err_busoff : std_logic;
+    signal err_reinit : std_logic;
+    signal err_node   : std_logic;
+    -- state watchdog and St0 re-initialisation
+    signal wd_us        : natural range 0 to WATCHDOG_US;
+    signal backoff_us   : natural range 0 to backoff_us_c;
+    signal reinit_pulse : std_logic;
+    -- a re-initialisation was requested and the controller has not restarted yet: St0 must
+    -- not leave on the init_done of the previous initialisation
+    signal reinit_wait   : std_logic;
+    signal init_done_fsm : std_logic;
+    signal status_ms     : natural range 0 to STATUS_POLL_MS;
+    -- CAN status snapshot for the host
+    signal can_tec  : std_logic_vector(7 downto 0);
+    signal can_rec  : std_logic_vector(7 downto 0);
+    signal can_eflg : std_logic_vector(7 downto 0);
+    -- St3 pop
+    signal rx_pop : std_logic;
+    -- entry strobes into the processing states
+    signal enter_sdo : std_logic;
+    signal enter_nmt : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Service blocks
+    -- ---------------------------------------------------------------------------------------------
+    signal sdo_busy       : std_logic;
+    signal sdo_done       : std_logic;
+    signal sdo_error      : std_logic;
+    signal sdo_abort_sent : std_logic;
+    signal sdo_abort_code : std_logic_vector(31 downto 0);
+    signal sdo_xfer_size  : std_logic_vector(10 downto 0);
+    signal sdo_tx_req     : std_logic;
+    signal sdo_tx_id      : std_logic_vector(10 downto 0);
+    signal sdo_tx_dlc     : std_logic_vector(3 downto 0);
+    signal sdo_tx_data    : std_logic_vector(63 downto 0);
+    signal sdo_tx_ack     : std_logic;
+    signal sdo_rx_done    : std_logic;
+    signal sdo_rx_reply   : std_logic;
+    signal sdo_rx_unexp   : std_logic;
+
+    signal st_nmt           : std_logic_vector(7 * MAX_NODES - 1 downto 0);
+    signal st_alive         : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_lost          : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_toggle        : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_bootup        : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_last          : std_logic_vector(32 * MAX_NODES - 1 downto 0);
+    signal ev_lost          : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal ev_toggle        : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal ev_bootup        : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal ev_emcy          : std_logic;
+    signal emcy_count       : std_logic_vector(6 downto 0);
+    signal emcy_lost        : std_logic;
+    signal emcy_node        : std_logic_vector(6 downto 0);
+    signal emcy_data        : std_logic_vector(63 downto 0);
+    signal emcy_time        : std_logic_vector(31 downto 0);
+    signal mon_tx_req       : std_logic;
+    signal mon_tx_id        : std_logic_vector(10 downto 0);
+    signal mon_tx_rtr       : std_logic;
+    signal mon_tx_dlc       : std_logic_vector(3 downto 0);
+    signal mon_tx_data      : std_logic_vector(63 downto 0);
+    signal mon_tx_ack       : std_logic;
+    signal mon_rx_done      : std_logic;
+    signal mon_rx_reply     : std_logic;
+    signal mon_rx_unexp     : std_logic;
+    signal mon_rx_malformed : std_logic;
+
+    -- events and counter strobes towards the host block
+    signal ev_node_any    : std_logic;
+    signal ev_can_error   : std_logic;
+    signal ev_frame_error : std_logic;
+    signal ev_init        : std_logic;
+    signal cnt_unexpected : std_logic;
+    signal cnt_rx_frame   : std_logic;
+    signal cnt_tx_frame   : std_logic;
+    signal cnt_tx_error   : std_logic;
+    signal cnt_can_error  : std_logic;
+    signal init_done_q    : std_logic;
+    signal init_fail_q    : std_logic;
+
+    function node_id_ok (id : cob_id_t) return boolean is
+    begin
+
+        return node_of(id) /= "0000000";
+
+    end function node_id_ok;
+
+begin
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Timebase: 1 us and 1 ms strobes, free-running counters
+    -- ---------------------------------------------------------------------------------------------
+    timebase_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            us_div  <= 0;
+            ms_div  <= 0;
+            tick_us <= '0';
+            tick_ms <= '0';
+            time_us <= (others => '0');
+            time_ms <= (others => '0');
+        elsif rising_edge(clk_i) then
+            tick_us <= '0';
+            tick_ms <= '0';
+            if us_div = cycles_per_us_c - 1 then
+                us_div  <= 0;
+                tick_us <= '1';
+                time_us <= time_us + 1;
+                if ms_div = 999 then
+                    ms_div  <= 0;
+                    tick_ms <= '1';
+                    time_ms <= time_ms + 1;
+                else
+                    ms_div <= ms_div + 1;
+                end if;
+            else
+                us_div <= us_div + 1;
+            end if;
+        end if;
+
+    end process timebase_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- FSM conditions
+    -- ---------------------------------------------------------------------------------------------
+    err_pending <= err_can or err_busoff or err_reinit or err_node;
+    sync_due    <= sync_en and (or sync_period_us) and not sync_loaded
+                   and not ctl_tx_pending_i(2);
+    -- a generation is only dispatched when its TX buffer is free
+    nmt_gen_req <= (nmt_pending or mon_tx_req) and not ctl_tx_pending_i(1);
+    sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
+    -- the PDO engine (issue 6) requests PDOs here
+    pdo_gen_req <= '0';
+
+    -- St3: CANopen uses base frames; an extended frame is dropped (T6) and counted
+    rx_head_ok <= not ctl_rx_ide_i;
+
+    -- St4: classification of Receive_Data by function code (CiA 301 predefined connection set)
+    classify_proc : process (all) is
+
+        variable fc : func_code_t;
+
+    begin
+
+        fc      := func_code(rx_frame.id);
+        cls_pdo <= '0';
+        cls_sdo <= '0';
+        cls_nmt <= '0';
+
+        if node_id_ok(rx_frame.id) then
+            if fc = FC_TPDO1_C or fc = FC_TPDO2_C or fc = FC_TPDO3_C or fc = FC_TPDO4_C then
+                cls_pdo <= '1';
+            elsif fc = FC_SDO_TX_C or rx_frame.id = sdo_cob_resp then
+                cls_sdo <= '1';
+            elsif fc = FC_NMT_EC_C or fc = FC_SYNC_EMCY_C then
+                cls_nmt <= '1';
+            end if;
+        elsif rx_frame.id = sdo_cob_resp and sdo_cob_resp /= "00000000000" then
+            cls_sdo <= '1';
+        end if;
+
+    end process classify_proc;
+
+    -- St5: received PDOs are acknowledged (the PDO engine of issue 6 will process them here)
+    pdo_done <= in_pdo_proc;
+
+    -- St2, St8..St10: the selected source presents its frame
+    frame_ready <= '1' when in_sync_gen = '1' else
+                   '1' when in_nmt_gen = '1' and (nmt_pending = '1' or mon_tx_req = '1') else
+                   '1' when in_sdo_gen = '1' and sdo_tx_req = '1' else
+                   '0';
+    encap_ok    <= in_encap;
+
+    -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
+    -- by the node monitor after a node error is sent right away (T28)
+    err_fatal <= err_busoff or err_reinit;
+    err_nmt   <= err_node and mon_tx_req;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Datapath: frames, SYNC, NMT, errors, watchdog
+    -- ---------------------------------------------------------------------------------------------
+    rx_pop         <= in_rx and ctl_rx_valid_i;
+    ctl_rx_ready_o <= rx_pop;
+
+    datapath_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            tx_requested <= '0';
+            gen_src      <= 0;
+            nmt_pending  <= '0';
+            sync_timer   <= (others => '0');
+            sync_loaded  <= '0';
+            sync_late    <= '0';
+            sync_counter <= to_unsigned(1, 8);
+            sync_count   <= (others => '0');
+            sync_fire    <= '0';
+            err_can      <= '0';
+            err_busoff   <= '0';
+            err_reinit   <= '0';
+            err_node     <= '0';
+            wd_us        <= 0;
+            backoff_us   <= 0;
+            reinit_pulse <= '0';
+            reinit_wait  <= '0';
+            status_ms    <= 0;
+            sdo_tx_ack   <= '0';
+            mon_tx_ack   <= '0';
+            init_done_q  <= '0';
+            init_fail_q  <= '0';
+        elsif rising_edge(clk_i) then
+            sync_fire    <= '0';
+            reinit_pulse <= '0';
+            sdo_tx_ack   <= '0';
+            mon_tx_ack   <= '0';
+            init_done_q  <= ctl_init_done_i;
+            init_fail_q  <= ctl_init_fail_i;
+
+            -- St3: Receive_Data ---------------------------------------------------------------
+            if rx_pop = '1' and rx_head_ok = '1' then
+                rx_frame.id   <= ctl_rx_id_i(10 downto 0);
+                rx_frame.rtr  <= ctl_rx_rtr_i;
+                rx_frame.dlc  <= ctl_rx_dlc_i;
+                rx_frame.data <= ctl_rx_data_i;
+            end if;
+
+            -- host NMT command --------------------------------------------------------------
+            if nmt_req = '1' then
+                nmt_pending  <= '1';
+                nmt_cmd_cs   <= nmt_cs;
+                nmt_cmd_node <= nmt_node;
+            end if;
+
+            -- St2, St8..St10: remember the generation source ---------------------------------
+            if in_sync_gen = '1' then
+                gen_src <= 0;
+            elsif in_nmt_gen = '1' and nmt_pending = '1' then
+                gen_src <= 1;
+            elsif in_nmt_gen = '1' then
+                gen_src <= 2;
+            elsif in_sdo_gen = '1' then
+                gen_src <= 3;
+            elsif in_pdo_gen = '1' then
+                gen_src <= 4;
+            end if;
+
+            -- St11: encapsulation into Transmit_Data, TX buffer and priority ----------------
+            if in_encap = '1' then
+                tx_frame     <= CAN_FRAME_NONE_C;
+                tx_requested <= '0';
+
+                case gen_src is
+
+                    when 0 =>
+
+                        -- SYNC (COB-ID 080h), with the counter byte when 1019h is set
+                        tx_frame.id <= COB_SYNC_C;
+                        if unsigned(sync_overflow) >= 2 then
+                            tx_frame.dlc              <= x"1";
+                            tx_frame.data(7 downto 0) <= std_logic_vector(sync_counter);
+                        end if;
+                        tx_buf  <= txb_sync_c;
+                        tx_txp  <= "11";
+                        tx_send <= '0';
+
+                    when 1 =>
+
+                        -- NMT command [cs, node]
+                        tx_frame.id                <= COB_NMT_C;
+                        tx_frame.dlc               <= x"2";
+                        tx_frame.data(15 downto 0) <= '0' & nmt_cmd_node & nmt_cmd_cs;
+                        tx_buf                     <= txb_cmd_c;
+                        tx_txp                     <= "10";
+                        tx_send                    <= '1';
+                        nmt_pending                <= '0';
+
+                    when 2 =>
+
+                        tx_frame.id   <= mon_tx_id;
+                        tx_frame.rtr  <= mon_tx_rtr;
+                        tx_frame.dlc  <= mon_tx_dlc;
+                        tx_frame.data <= mon_tx_data;
+                        tx_buf        <= txb_cmd_c;
+                        tx_txp        <= "10";
+                        tx_send       <= '1';
+                        mon_tx_ack    <= '1';
+
+                    when 3 =>
+
+                        tx_frame.id   <= sdo_tx_id;
+                        tx_frame.dlc  <= sdo_tx_dlc;
+                        tx_frame.data <= sdo_tx_data;
+                        tx_buf        <= txb_cmd_c;
+                        tx_txp        <= "10";
+                        tx_send       <= '1';
+                        sdo_tx_ack    <= '1';
+
+                    when 4 =>
+
+                        tx_buf  <= txb_pdo_c;
+                        tx_txp  <= "01";
+                        tx_send <= '1';
+
+                end case;
+
+            end if;
+
+            -- St12: the request stays up until the controller takes it -------------------
+            if in_tx = '1' and ctl_tx_ready_i = '1' then
+                tx_requested <= '1';
+            end if;
+            if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
+                sync_loaded <= '1';
+            end if;
+
+            -- SYNC producer: exact period in clock cycles, started by the TX2RTS pin ---------
+            if sync_en = '0' or unsigned(sync_period_us) = 0 then
+                sync_timer <= (others => '0');
+                sync_late  <= '0';
+            elsif tick_us = '1' then
+                if sync_timer + 1 >= unsigned(sync_period_us) then
+                    sync_timer <= (others => '0');
+                    if sync_loaded = '1' then
+                        sync_fire <= '1';
+                    else
+                        sync_late <= '1';
+                    end if;
+                else
+                    sync_timer <= sync_timer + 1;
+                end if;
+            end if;
+            if sync_late = '1' and sync_loaded = '1' and sync_fire = '0' then
+                sync_late <= '0';
+                sync_fire <= '1';
+            end if;
+            if sync_fire = '1' then
+                sync_loaded <= '0';
+                sync_count  <= sync_count + 1;
+                if unsigned(sync_overflow) >= 2 and sync_counter >= unsigned(sync_overflow) then
+                    sync_counter <= to_unsigned(1, 8);
+                elsif unsigned(sync_overflow) >= 2 then
+                    sync_counter <= sync_counter + 1;
+                end if;
+            end if;
+
+            -- error latch --------------------------------------------------------------------
+            if ctl_int_valid_i = '1' and ctl_int_canintf_i(intf_errif_c) = '1' then
+                err_can <= '1';
+                if ctl_int_eflg_i(eflg_txbo_c) = '1' then
+                    err_busoff <= '1';
+                end if;
+            end if;
+            if ctl_rx_overflow_i /= "00" or ctl_tx_err_i /= "000" then
+                err_can <= '1';
+            end if;
+            if host_reinit = '1' then
+                err_reinit <= '1';
+            end if;
+            if ev_lost /= (ev_lost'range => '0') or ev_toggle /= (ev_toggle'range => '0') then
+                err_node <= '1';
+            end if;
+            if in_error = '1' then
+                err_can    <= '0';
+                err_busoff <= '0';
+                err_reinit <= '0';
+                err_node   <= '0';
+            end if;
+
+            -- state watchdog: bounded waits (G4) ----------------------------------------------
+            if state_change = '1' then
+                wd_us <= 0;
+            elsif tick_us = '1' and wd_us < WATCHDOG_US then
+                wd_us <= wd_us + 1;
+            end if;
+
+            -- St0: re-initialise the controller on entry from St13 (G1), and after a failed
+            -- initialisation once the back-off time has passed (T1) -------------------------
+            if in_init = '1' and state_change = '1' and init_done_q = '1' then
+                reinit_pulse <= '1';
+                reinit_wait  <= '1';
+            end if;
+            if reinit_wait = '1' and reinit_pulse = '0' and ctl_init_done_i = '0' then
+                reinit_wait <= '0';
+            end if;
+            if in_init = '1' and ctl_init_fail_i = '1' then
+                if backoff_us = backoff_us_c then
+                    backoff_us   <= 0;
+                    reinit_pulse <= '1';
+                elsif tick_us = '1' then
+                    backoff_us <= backoff_us + 1;
+                end if;
+            else
+                backoff_us <= 0;
+            end if;
+
+            -- periodic TEC/REC/EFLG snapshot for the host --------------------------------------
+            if ctl_status_ok_i = '1' then
+                can_tec  <= ctl_tec_i;
+                can_rec  <= ctl_rec_i;
+                can_eflg <= ctl_eflg_i;
+            end if;
+            if tick_ms = '1' then
+                if status_ms = STATUS_POLL_MS - 1 then
+                    status_ms <= 0;
+                else
+                    status_ms <= status_ms + 1;
+                end if;
+            end if;
+        end if;
+
+    end process datapath_proc;
+
+    watchdog <= '1' when wd_us = WATCHDOG_US else '0';
+    -- masked from the entry into St0 (G1) until the controller has dropped init_done
+    init_done_fsm <= ctl_init_done_i and not reinit_wait and not reinit_pulse
+                     and not (in_init and state_change);
+
+    ctl_reinit_o     <= reinit_pulse;
+    ctl_status_req_o <= '1' when tick_ms = '1' and status_ms = STATUS_POLL_MS - 1
+                                 and ctl_init_done_i = '1' else '0';
+
+    -- St12: request towards mcp2510_ctrl
+    ctl_tx_valid_o <= in_tx and not tx_requested;
+    ctl_tx_buf_o   <= tx_buf;
+    ctl_tx_txp_o   <= tx_txp;
+    ctl_tx_send_o  <= tx_send;
+    ctl_tx_id_o    <= (28 downto 11 => '0') & tx_frame.id;
+    ctl_tx_rtr_o   <= tx_frame.rtr;
+    ctl_tx_dlc_o   <= tx_frame.dlc;
+    ctl_tx_data_o  <= tx_frame.data;
+    ctl_tx_fire_o  <= (2 => sync_fire, others => '0');
+
+    -- entry strobes into the processing states: the service blocks see each frame once
+    enter_sdo <= in_sdo_proc and state_change;
+    enter_nmt <= in_nmt_proc and state_change;
+
+    -- events and counters for the host block
+    ev_node_any    <= (or ev_lost) or (or ev_toggle) or (or ev_bootup);
+    ev_can_error   <= in_error and (err_can or err_busoff);
+    cnt_unexpected <= '1' when (in_rx = '1' and ctl_rx_valid_i = '1' and rx_head_ok = '0')
+                               or (in_parse = '1' and cls_pdo = '0' and cls_sdo = '0'
+                             and cls_nmt = '0')
+                                   or (sdo_rx_done = '1' and sdo_rx_unexp = '1')
+                                   or (mon_rx_done = '1' and mon_rx_unexp = '1') else
+                      '0';
+    ev_frame_error <= cnt_unexpected or (mon_rx_done and mon_rx_malformed);
+    cnt_rx_frame   <= rx_pop;
+    cnt_tx_frame   <= or ctl_tx_done_i;
+    cnt_tx_error   <= or ctl_tx_err_i;
+    cnt_can_error  <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
+    ev_init        <= (ctl_init_done_i and not init_done_q)
+                      or (ctl_init_fail_i and not init_fail_q);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- The FSM
+    -- ---------------------------------------------------------------------------------------------
+    fsm_inst : entity canopen_master.canopen_master_fsm
+        port map (
+            clk_i          => clk_i,
+            rst_n_i        => rst_n_i,
+            init_done_i    => init_done_fsm,
+            init_fail_i    => ctl_init_fail_i,
+            err_pending_i  => err_pending,
+            rx_avail_i     => ctl_rx_valid_i,
+            sync_due_i     => sync_due,
+            nmt_req_i      => nmt_gen_req,
+            sdo_req_i      => sdo_gen_req,
+            pdo_req_i      => pdo_gen_req,
+            rx_head_ok_i   => rx_head_ok,
+            cls_pdo_i      => cls_pdo,
+            cls_sdo_i      => cls_sdo,
+            cls_nmt_i      => cls_nmt,
+            pdo_done_i     => pdo_done,
+            pdo_reply_i    => '0',
+            sdo_done_i     => sdo_rx_done,
+            sdo_reply_i    => sdo_rx_reply,
+            nmt_done_i     => mon_rx_done,
+            nmt_reply_i    => mon_rx_reply,
+            frame_ready_i  => frame_ready,
+            encap_ok_i     => encap_ok,
+            tx_loaded_i    => ctl_tx_loaded_i,
+            err_fatal_i    => err_fatal,
+            err_nmt_i      => err_nmt,
+            watchdog_i     => watchdog,
+            state_o        => fsm_state,
+            state_change_o => state_change,
+            in_init_o      => in_init,
+            in_sync_gen_o  => in_sync_gen,
+            in_rx_o        => in_rx,
+            in_parse_o     => in_parse,
+            in_pdo_proc_o  => in_pdo_proc,
+            in_sdo_proc_o  => in_sdo_proc,
+            in_nmt_proc_o  => in_nmt_proc,
+            in_pdo_gen_o   => in_pdo_gen,
+            in_sdo_gen_o   => in_sdo_gen,
+            in_nmt_gen_o   => in_nmt_gen,
+            in_encap_o     => in_encap,
+            in_tx_o        => in_tx,
+            in_error_o     => in_error
+        );
+
+    fsm_state_o <= fsm_state;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Services
+    -- ---------------------------------------------------------------------------------------------
+    sdo_inst : entity canopen_master.canopen_sdo_client
+        generic map (
+            BUF_BYTES => SDO_BUF_BYTES
+        )
+        port map (
+            clk_i           => clk_i,
+            rst_n_i         => rst_n_i,
+            tick_ms_i       => tick_ms,
+            req_valid_i     => sdo_req,
+            req_upload_i    => sdo_upload,
+            req_node_i      => sdo_node,
+            req_index_i     => sdo_index,
+            req_subindex_i  => sdo_subindex,
+            req_size_i      => sdo_size,
+            cob_req_i       => sdo_cob_req,
+            cob_resp_i      => sdo_cob_resp,
+            timeout_ms_i    => sdo_timeout_ms,
+            busy_o          => sdo_busy,
+            done_o          => sdo_done,
+            error_o         => sdo_error,
+            abort_code_o    => sdo_abort_code,
+            abort_sent_o    => sdo_abort_sent,
+            size_o          => sdo_xfer_size,
+            buf_addr_i      => sdo_buf_addr,
+            buf_we_i        => sdo_buf_we,
+            buf_wdata_i     => sdo_buf_wdata,
+            buf_rdata_o     => sdo_buf_rdata,
+            tx_req_o        => sdo_tx_req,
+            tx_id_o         => sdo_tx_id,
+            tx_dlc_o        => sdo_tx_dlc,
+            tx_data_o       => sdo_tx_data,
+            tx_ack_i        => sdo_tx_ack,
+            rx_valid_i      => enter_sdo,
+            rx_id_i         => rx_frame.id,
+            rx_dlc_i        => rx_frame.dlc,
+            rx_data_i       => rx_frame.data,
+            rx_done_o       => sdo_rx_done,
+            rx_reply_o      => sdo_rx_reply,
+            rx_unexpected_o => sdo_rx_unexp,
+            state_o         => open
+        );
+
+    monitor_inst : entity canopen_master.canopen_node_monitor
+        generic map (
+            MAX_NODES  => MAX_NODES,
+            EMCY_DEPTH => EMCY_DEPTH
+        )
+        port map (
+            clk_i               => clk_i,
+            rst_n_i             => rst_n_i,
+            tick_ms_i           => tick_ms,
+            time_ms_i           => std_logic_vector(time_ms),
+            cfg_node_i          => cfg_node,
+            cfg_mode_i          => cfg_mode,
+            cfg_time_i          => cfg_time,
+            cfg_life_i          => cfg_life,
+            cfg_autostart_i     => cfg_autostart,
+            cfg_reset_on_loss_i => cfg_reset_loss,
+            st_nmt_o            => st_nmt,
+            st_alive_o          => st_alive,
+            st_lost_o           => st_lost,
+            st_toggle_o         => st_toggle,
+            st_bootup_o         => st_bootup,
+            st_last_o           => st_last,
+            st_clear_i          => node_clear,
+            ev_lost_o           => ev_lost,
+            ev_toggle_o         => ev_toggle,
+            ev_bootup_o         => ev_bootup,
+            ev_emcy_o           => ev_emcy,
+            emcy_count_o        => emcy_count,
+            emcy_lost_o         => emcy_lost,
+            emcy_clear_i        => emcy_clear,
+            emcy_node_o         => emcy_node,
+            emcy_data_o         => emcy_data,
+            emcy_time_o         => emcy_time,
+            emcy_pop_i          => emcy_pop,
+            tx_req_o            => mon_tx_req,
+            tx_id_o             => mon_tx_id,
+            tx_rtr_o            => mon_tx_rtr,
+            tx_dlc_o            => mon_tx_dlc,
+            tx_data_o           => mon_tx_data,
+            tx_ack_i            => mon_tx_ack,
+            rx_valid_i          => enter_nmt,
+            rx_id_i             => rx_frame.id,
+            rx_rtr_i            => rx_frame.rtr,
+            rx_dlc_i            => rx_frame.dlc,
+            rx_data_i           => rx_frame.data,
+            rx_done_o           => mon_rx_done,
+            rx_reply_o          => mon_rx_reply,
+            rx_unexpected_o     => mon_rx_unexp,
+            rx_malformed_o      => mon_rx_malformed
+        );
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Host registers
+    -- ---------------------------------------------------------------------------------------------
+    regs_inst : entity canopen_master.canopen_host_regs
+        generic map (
+            MAX_NODES => MAX_NODES
+        )
+        port map (
+            clk_i                    => clk_i,
+            rst_n_i                  => rst_n_i,
+            avs_address_i            => avs_address_i,
+            avs_read_i               => avs_read_i,
+            avs_write_i              => avs_write_i,
+            avs_writedata_i          => avs_writedata_i,
+            avs_byteenable_i         => avs_byteenable_i,
+            avs_readdata_o           => avs_readdata_o,
+            avs_readdatavalid_o      => avs_readdatavalid_o,
+            irq_o                    => irq_o,
+            sync_en_o                => sync_en,
+            reinit_o                 => host_reinit,
+            nmt_req_o                => nmt_req,
+            nmt_cs_o                 => nmt_cs,
+            nmt_node_o               => nmt_node,
+            sync_period_us_o         => sync_period_us,
+            sync_overflow_o          => sync_overflow,
+            sync_window_us_o         => sync_window_us,
+            node_cfg_node_o          => cfg_node,
+            node_cfg_mode_o          => cfg_mode,
+            node_cfg_time_o          => cfg_time,
+            node_cfg_life_o          => cfg_life,
+            node_cfg_autostart_o     => cfg_autostart,
+            node_cfg_reset_on_loss_o => cfg_reset_loss,
+            node_clear_o             => node_clear,
+            emcy_clear_o             => emcy_clear,
+            emcy_pop_o               => emcy_pop,
+            sdo_req_o                => sdo_req,
+            sdo_upload_o             => sdo_upload,
+            sdo_node_o               => sdo_node,
+            sdo_index_o              => sdo_index,
+            sdo_subindex_o           => sdo_subindex,
+            sdo_size_o               => sdo_size,
+            sdo_timeout_ms_o         => sdo_timeout_ms,
+            sdo_cob_req_o            => sdo_cob_req,
+            sdo_cob_resp_o           => sdo_cob_resp,
+            sdo_buf_addr_o           => sdo_buf_addr,
+            sdo_buf_we_o             => sdo_buf_we,
+            sdo_buf_wdata_o          => sdo_buf_wdata,
+            fsm_state_i              => fsm_state,
+            init_done_i              => ctl_init_done_i,
+            init_fail_i              => ctl_init_fail_i,
+            ctrl_busy_i              => ctl_busy_i,
+            tx_pending_i             => ctl_tx_pending_i,
+            bus_off_i                => can_eflg(eflg_txbo_c),
+            err_passive_i            => can_eflg(4) or can_eflg(3),
+            nmt_busy_i               => nmt_pending,
+            sync_count_i             => std_logic_vector(sync_count),
+            time_us_i                => std_logic_vector(time_us),
+            tec_i                    => can_tec,
+            rec_i                    => can_rec,
+            eflg_i                   => can_eflg,
+            node_nmt_i               => st_nmt,
+            node_alive_i             => st_alive,
+            node_lost_i              => st_lost,
+            node_toggle_i            => st_toggle,
+            node_bootup_i            => st_bootup,
+            node_last_i              => st_last,
+            emcy_count_i             => emcy_count,
+            emcy_lost_i              => emcy_lost,
+            emcy_node_i              => emcy_node,
+            emcy_data_i              => emcy_data,
+            emcy_time_i              => emcy_time,
+            sdo_busy_i               => sdo_busy,
+            sdo_error_i              => sdo_error,
+            sdo_abort_code_i         => sdo_abort_code,
+            sdo_abort_sent_i         => sdo_abort_sent,
+            sdo_size_i               => sdo_xfer_size,
+            sdo_buf_rdata_i          => sdo_buf_rdata,
+            ev_node_i                => ev_node_any,
+            ev_emcy_i                => ev_emcy,
+            ev_sdo_done_i            => sdo_done,
+            ev_can_error_i           => ev_can_error,
+            ev_sync_i                => sync_fire,
+            ev_frame_error_i         => ev_frame_error,
+            ev_init_i                => ev_init,
+            cnt_rx_frame_i           => cnt_rx_frame,
+            cnt_tx_frame_i           => cnt_tx_frame,
+            cnt_unexpected_i         => cnt_unexpected,
+            cnt_malformed_i          => mon_rx_done and mon_rx_malformed,
+            cnt_rx_overflow_i        => ctl_rx_overflow_i,
+            cnt_tx_error_i           => cnt_tx_error,
+            cnt_sdo_abort_i          => sdo_done and sdo_error,
+            cnt_hb_loss_i            => or ev_lost,
+            cnt_guard_err_i          => or ev_toggle,
+            cnt_can_error_i          => cnt_can_error,
+            cnt_emcy_i               => ev_emcy
+        );
+
+end architecture rtl;

@@ -1,0 +1,419 @@
+"""Python driver of the CANopen master's host registers (``canopen_host_regs``).
+
+:class:`CanopenMasterHost` talks to the Avalon-MM slave through cocotb-bus's
+:class:`~cocotb_bus.drivers.avalon.AvalonMaster` and names every register and field by the
+generated map :mod:`tb.tblib.regmap` (source: ``scripts/regmap.py``). It is what a user's
+bench (or a system test) calls to configure the master, send NMT commands, run SDO transfers,
+read node states, EMCY messages, counters and interrupts, and configure, write and read PDOs.
+
+The slave has the IP core's port names (``avs_address_i``, ``avs_readdata_o``, ...):
+:class:`AvalonSuffixMaster` maps the Avalon roles to those names. ``waitrequest`` is optional
+(the core has none), ``readdatavalid`` is used, so the read latency is taken from the slave.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from cocotb.handle import SimHandleBase
+from cocotb.triggers import ClockCycles, Lock, NextTimeStep, RisingEdge
+from cocotb.types import LogicArray
+from cocotb_bus.drivers.avalon import AvalonMaster
+
+from tb.tblib import regmap as R
+
+NODE_MODES = {"off": 0, "heartbeat": 1, "guarding": 2}
+COUNTER_NAMES = ("RX_FRAMES", "TX_FRAMES", "UNEXPECTED", "MALFORMED", "RX_OVERFLOW",
+                 "TX_ERROR", "SDO_ABORT", "HB_LOSS", "GUARD_ERR", "CAN_ERROR", "EMCY")
+IRQ_NAMES = tuple(R.REGISTERS["IRQ_STATUS"].fields)
+PDO_COUNTER_NAMES = ("RX", "TX", "RTR", "LEN_ERR", "MISSED", "LATE", "UNEXPECTED")
+#: CiA 301 transmission types (PDO_CFG.TT)
+TT_SYNC_ACYCLIC = 0
+TT_SYNC_MAX = 240
+TT_RTR_SYNC = 252
+TT_RTR_EVENT = 253
+TT_EVENT_MANUF = 254
+TT_EVENT = 255
+
+
+class SdoAbort(Exception):
+    """An SDO transfer ended with an abort (``code``: CiA 301 abort code)."""
+
+    def __init__(self, code: int, sent_by_client: bool) -> None:
+        who = "the master (client)" if sent_by_client else "the node (server)"
+        super().__init__(f"SDO abort 0x{code:08X} sent by {who}")
+        self.code = code
+        self.sent_by_client = sent_by_client
+
+
+class SdoTimeout(TimeoutError):
+    """SDO_CMD.DONE did not come within the driver's poll budget."""
+
+
+class AvalonSuffixMaster(AvalonMaster):
+    """:class:`AvalonMaster` on a slave whose ports end in ``_i``/``_o``.
+
+    Adds ``write(..., byteenable=...)`` for partial writes (cocotb-bus always enables every
+    byte lane).
+    """
+
+    _signals = {"address": "address_i"}
+    _optional_signals = {
+        "read": "read_i",
+        "write": "write_i",
+        "writedata": "writedata_i",
+        "byteenable": "byteenable_i",
+        "readdata": "readdata_o",
+        "readdatavalid": "readdatavalid_o",
+        "waitrequest": "waitrequest_o",
+    }
+
+    async def write(self, address: int, value: int, byteenable: int | None = None) -> None:
+        if byteenable is None or not hasattr(self.bus, "byteenable"):
+            await super().write(address, value)
+            return
+        await self._acquire_lock()
+        await RisingEdge(self.clock)
+        self.bus.address.value = address
+        self.bus.writedata.value = value
+        self.bus.byteenable.value = byteenable
+        self.bus.write.value = 1
+        if hasattr(self.bus, "waitrequest"):
+            await self._wait_for_nsignal(self.bus.waitrequest)
+        await RisingEdge(self.clock)
+        self.bus.write.value = 0
+        self.bus.byteenable.value = 0
+        self.bus.address.value = LogicArray("x" * len(self.bus.address))
+        self.bus.writedata.value = LogicArray("x" * len(self.bus.writedata))
+        self._release_lock()
+
+
+def _bits(bits: int | str | Iterable[str]) -> int:
+    """Interrupt bits as a mask: an int, one name or several names of IRQ_STATUS fields."""
+    if isinstance(bits, int):
+        return bits
+    names = [bits] if isinstance(bits, str) else list(bits)
+    mask = 0
+    for name in names:
+        f = R.REGISTERS["IRQ_STATUS"].fields[name.upper()]
+        mask |= 1 << f.lo
+    return mask
+
+
+class CanopenMasterHost:
+    """Register-level driver of the CANopen master.
+
+    ``max_polls`` bounds every wait on SDO_CMD.DONE (``poll_cycles`` clock cycles apart);
+    exceeding it raises :class:`SdoTimeout`. ``bus`` replaces the Avalon master by any object
+    with ``async read(address) -> int`` and ``async write(address, value, byteenable=None)``
+    (word addresses of the map), e.g. a bench that drives one block's port directly.
+    """
+
+    def __init__(self, dut: SimHandleBase, clock: SimHandleBase, name_prefix: str = "avs", *,
+                 max_polls: int = 10_000, poll_cycles: int = 10, bus: Any = None) -> None:
+        self.dut = dut
+        self.clock = clock
+        self.bus = AvalonSuffixMaster(dut, name_prefix, clock) if bus is None else bus
+        self.max_polls = max_polls
+        self.poll_cycles = poll_cycles
+        #: PDO_SEL is shared by every register of the PDO window: one sequence at a time
+        self._pdo_lock = Lock()
+
+    # ------------------------------------------------------------------ raw access
+    @staticmethod
+    def address(name_or_addr: int | str, slot: int | None = None) -> int:
+        if isinstance(name_or_addr, int):
+            if slot is not None:
+                return R.node_addr(name_or_addr, slot)
+            return name_or_addr
+        return R.addr(name_or_addr.upper(), slot)
+
+    async def read(self, name_or_addr: int | str, slot: int | None = None) -> int:
+        """One 32-bit read; ``slot`` selects the node slot of a per-node register.
+
+        Returns in the next time step after the data was taken (not in the read-only phase).
+        """
+        value = await self.bus.read(self.address(name_or_addr, slot))
+        # AvalonMaster returns in the read-only phase: leave it so the caller may drive signals
+        await NextTimeStep()
+        return int(value)
+
+    async def write(self, name_or_addr: int | str, value: int, slot: int | None = None, *,
+                    byteenable: int | None = None) -> None:
+        """One 32-bit write (``byteenable`` for a partial one)."""
+        await self.bus.write(self.address(name_or_addr, slot), value, byteenable)
+
+    async def read_fields(self, reg: str, slot: int | None = None) -> dict[str, int]:
+        """Every readable field of ``reg`` as ``{field: value}``."""
+        word = await self.read(reg, slot)
+        return {name: R.get_field(reg, name, word)
+                for name, f in R.REGISTERS[reg].fields.items() if f.access in ("RO", "RW", "W1C")}
+
+    # ------------------------------------------------------------------ NMT and SYNC
+    async def nmt(self, cs: int, node: int = 0) -> None:
+        """Send NMT command ``cs`` to ``node`` (0 = all nodes)."""
+        await self.write("NMT_CMD", R.make("NMT_CMD", CS=cs, NODE=node))
+
+    async def nmt_busy(self) -> bool:
+        return bool(await self.read("NMT_CMD") & R.NMT_CMD_NMT_BUSY)
+
+    async def sync_config(self, period_us: int, overflow: int = 0, window_us: int = 0,
+                          enable: bool = True) -> None:
+        """SYNC period (0 = off), counter overflow (0 or 2..240) and window, then SYNC_EN."""
+        if overflow not in (0, *range(2, 241)):
+            raise ValueError(f"SYNC overflow {overflow}: 0 or 2..240 (CiA 301 1019h)")
+        await self.write("SYNC_PERIOD_US", R.make("SYNC_PERIOD_US", VALUE=period_us))
+        await self.write("SYNC_OVERFLOW", R.make("SYNC_OVERFLOW", VALUE=overflow))
+        await self.write("SYNC_WINDOW_US", R.make("SYNC_WINDOW_US", VALUE=window_us))
+        await self.write("CTRL", R.make("CTRL", SYNC_EN=int(enable)))
+
+    async def reinit(self) -> None:
+        """Re-initialise the CAN controller (CTRL.REINIT pulse; SYNC_EN kept)."""
+        ctrl = await self.read("CTRL")
+        await self.write("CTRL", ctrl | R.CTRL_REINIT)
+
+    # ------------------------------------------------------------------ node supervision
+    async def node_config(self, slot: int, node_id: int, mode: int | str, time_ms: int,
+                          life: int = 0, autostart: bool = False,
+                          reset_on_loss: bool = False) -> None:
+        """Configure supervision slot ``slot`` (mode: 0/"off", 1/"heartbeat", 2/"guarding")."""
+        mode_v = NODE_MODES[mode] if isinstance(mode, str) else mode
+        await self.write("NODE_TIME", R.make("NODE_TIME", TIME_MS=time_ms, LIFE_FACTOR=life),
+                         slot)
+        await self.write("NODE_CFG", R.make("NODE_CFG", NODE_ID=node_id, MODE=mode_v,
+                                            AUTOSTART=int(autostart),
+                                            RESET_ON_LOSS=int(reset_on_loss)), slot)
+
+    async def node_status(self, slot: int) -> dict[str, int | bool]:
+        """State of slot ``slot``: NMT state, flags and time of the last message."""
+        f = await self.read_fields("NODE_STATUS", slot)
+        return {
+            "nmt_state": f["NMT_STATE"],
+            "alive": bool(f["ALIVE"]),
+            "lost": bool(f["LOST"]),
+            "toggle_err": bool(f["TOGGLE_ERR"]),
+            "bootup": bool(f["BOOTUP"]),
+            "last_ms": await self.read("NODE_LAST_MS", slot),
+        }
+
+    async def clear_node(self, slot: int) -> None:
+        """Clear the sticky LOST / TOGGLE_ERR / BOOTUP flags of slot ``slot``."""
+        await self.write("NODE_STATUS", R.NODE_STATUS_LOST | R.NODE_STATUS_TOGGLE_ERR
+                         | R.NODE_STATUS_BOOTUP, slot)
+
+    # ------------------------------------------------------------------ EMCY
+    async def emcy_pop(self) -> dict[str, int | bytes | bool] | None:
+        """Read and drop the EMCY FIFO head; ``None`` when the FIFO is empty."""
+        status = await self.read_fields("EMCY_STATUS")
+        if status["COUNT"] == 0:
+            return None
+        node = R.get_field("EMCY_NODE", "NODE", await self.read("EMCY_NODE"))
+        lo = await self.read("EMCY_DATA_LO")
+        hi = await self.read("EMCY_DATA_HI")
+        time_ms = await self.read("EMCY_TIME_MS")
+        await self.write("EMCY_POP", 0)
+        data = (lo | hi << 32).to_bytes(8, "little")
+        return {"node": node, "data": data, "error_code": int.from_bytes(data[:2], "little"),
+                "error_register": data[2], "time_ms": time_ms, "lost": bool(status["LOST"])}
+
+    async def emcy_clear_lost(self) -> None:
+        await self.write("EMCY_STATUS", R.EMCY_STATUS_LOST)
+
+    # ------------------------------------------------------------------ counters, interrupts
+    async def counters(self) -> dict[str, int]:
+        """Every CNT_* register, keyed by its lower-case name without ``CNT_``."""
+        return {name.lower(): await self.read(f"CNT_{name}") for name in COUNTER_NAMES}
+
+    async def clear_counters(self) -> None:
+        ctrl = await self.read("CTRL")
+        await self.write("CTRL", ctrl | R.CTRL_CLR_COUNTERS)
+
+    async def irq_status(self) -> int:
+        return await self.read("IRQ_STATUS")
+
+    async def irq_clear(self, bits: int | str | Iterable[str]) -> None:
+        """Clear IRQ_STATUS bits (mask or field names)."""
+        await self.write("IRQ_STATUS", _bits(bits))
+
+    async def irq_enable(self, bits: int | str | Iterable[str]) -> None:
+        """Set IRQ_ENABLE to exactly ``bits`` (mask or field names)."""
+        await self.write("IRQ_ENABLE", _bits(bits))
+
+    # ------------------------------------------------------------------ SDO
+    async def sdo_cob(self, request: int = 0, response: int = 0) -> None:
+        """SDO COB-IDs; 0 selects the default 600h/580h + node."""
+        await self.write("SDO_COB", R.make("SDO_COB", REQUEST=request, RESPONSE=response))
+
+    async def _sdo_start(self, node: int, index: int, sub: int, upload: bool,
+                         size: int) -> None:
+        await self.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=index, SUBINDEX=sub))
+        await self.write("SDO_CMD", R.make("SDO_CMD", NODE=node, UPLOAD=int(upload), SIZE=size))
+
+    async def _sdo_wait(self) -> int:
+        """Poll SDO_CMD until DONE; raise :class:`SdoAbort` on ERROR; return the size."""
+        for _ in range(self.max_polls):
+            word = await self.read("SDO_CMD")
+            if word & R.SDO_CMD_DONE:
+                if word & R.SDO_CMD_ERROR:
+                    code = await self.read("SDO_ABORT")
+                    raise SdoAbort(code, bool(word & R.SDO_CMD_ABORT_SENT))
+                return R.get_field("SDO_CMD", "XFER_SIZE", word)
+            await ClockCycles(self.clock, self.poll_cycles)
+        raise SdoTimeout(f"SDO_CMD.DONE not seen within {self.max_polls} polls")
+
+    async def sdo_download(self, node: int, index: int, sub: int, data: bytes,
+                           timeout_ms: int | None = None) -> None:
+        """Write ``data`` to object ``index``:``sub`` of ``node``."""
+        if len(data) > 4 * R.SDO_BUF_WORDS:
+            raise ValueError(f"SDO download of {len(data)} bytes: 0..{4 * R.SDO_BUF_WORDS}")
+        if timeout_ms is not None:
+            await self.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=timeout_ms))
+        padded = bytes(data) + bytes(-len(data) % 4)
+        for w in range(len(padded) // 4):
+            await self.write(R.REG_SDO_BUF + w, int.from_bytes(padded[4 * w:4 * w + 4], "little"))
+        await self._sdo_start(node, index, sub, False, len(data))
+        await self._sdo_wait()
+
+    async def sdo_upload(self, node: int, index: int, sub: int,
+                         timeout_ms: int | None = None) -> bytes:
+        """Read object ``index``:``sub`` of ``node``."""
+        if timeout_ms is not None:
+            await self.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=timeout_ms))
+        await self._sdo_start(node, index, sub, True, 0)
+        size = await self._sdo_wait()
+        if size > 4 * R.SDO_BUF_WORDS:
+            raise ValueError(f"SDO upload reports {size} bytes, the buffer holds "
+                             f"{4 * R.SDO_BUF_WORDS}")
+        raw = bytearray()
+        for w in range((size + 3) // 4):
+            raw += await self._read_buf_word(w, min(4, size - 4 * w))
+        return bytes(raw[:size])
+
+    async def _read_buf_word(self, w: int, n_valid: int) -> bytes:
+        """Word ``w`` of SDO_BUF; only its first ``n_valid`` bytes were transferred (the rest
+        of the last word is whatever the buffer RAM held: undefined in simulation)."""
+        value = await self.bus.read(R.REG_SDO_BUF + w)
+        await NextTimeStep()
+        bits = str(value)  # MSB first, 32 characters
+        out = bytearray()
+        for k in range(4):
+            byte = bits[len(bits) - 8 * (k + 1):len(bits) - 8 * k]
+            if k < n_valid:
+                out.append(int(byte, 2))  # a transferred byte must be defined
+            else:
+                out.append(int(byte, 2) if set(byte) <= {"0", "1"} else 0)
+        return bytes(out)
+
+    # ------------------------------------------------------------------ PDOs
+    # The window registers PDO_CFG .. PDO_LATE show the channel chosen by PDO_SEL, so every
+    # method below selects its channel first and holds a lock over the whole sequence.
+    async def _pdo_sel(self, rpdo: bool, ch: int, ack: bool = False) -> None:
+        await self.write("PDO_SEL", R.make("PDO_SEL", CH=ch, RPDO=int(rpdo), ACK=int(ack)))
+
+    async def pdo_info(self) -> tuple[int, int]:
+        """(N_TPDO, N_RPDO) of the PDO engine."""
+        f = await self.read_fields("PDO_INFO")
+        return f["N_TPDO"], f["N_RPDO"]
+
+    async def tpdo_config(self, ch: int, cob_id: int, dlc: int, tt: int, *, valid: bool = True,
+                          rtr_allowed: bool | None = None, inhibit_100us: int = 0) -> None:
+        """Configure TPDO ``ch`` (the master transmits). ``rtr_allowed`` defaults to True for
+        the RTR-only types 252/253. Resets the channel's SYNC count and drops a frame not yet
+        started."""
+        if not 0 <= dlc <= 8:
+            raise ValueError(f"DLC {dlc}: 0..8")
+        if 241 <= tt <= 251:
+            raise ValueError(f"transmission type {tt} is reserved (CiA 301)")
+        rtr = tt in (TT_RTR_SYNC, TT_RTR_EVENT) if rtr_allowed is None else rtr_allowed
+        async with self._pdo_lock:
+            await self._pdo_sel(False, ch)
+            await self.write("PDO_INHIBIT", R.make("PDO_INHIBIT", TIME_100US=inhibit_100us))
+            await self.write("PDO_CFG", R.make("PDO_CFG", COB_ID=cob_id, RTR=int(rtr),
+                                               VALID=int(valid), DLC=dlc, TT=tt))
+
+    async def tpdo_write(self, ch: int, data: bytes, commit: bool = True,
+                         trigger: bool = False) -> None:
+        """Write up to 8 bytes to TPDO ``ch``'s staging register (missing bytes are 0) and,
+        by default, commit them: at the next SYNC for TT 0..252, at once for 253..255.
+        ``trigger`` also requests a transmission (TT 254/255 now, TT 0 after the next SYNC)."""
+        if len(data) > 8:
+            raise ValueError(f"{len(data)} bytes: a PDO has at most 8")
+        raw = bytes(data).ljust(8, b"\0")
+        async with self._pdo_lock:
+            await self._pdo_sel(False, ch)
+            await self.write("PDO_DATA_LO", int.from_bytes(raw[:4], "little"))
+            await self.write("PDO_DATA_HI", int.from_bytes(raw[4:], "little"))
+            if commit or trigger:
+                await self.write("PDO_CMD", R.make("PDO_CMD", COMMIT=int(commit),
+                                                   TRIGGER=int(trigger)))
+
+    async def tpdo_trigger(self, ch: int) -> None:
+        """Request a transmission of TPDO ``ch`` (TT 254/255: now; TT 0: after the next
+        SYNC) with its current data."""
+        async with self._pdo_lock:
+            await self._pdo_sel(False, ch)
+            await self.write("PDO_CMD", R.PDO_CMD_TRIGGER)
+
+    async def tpdo_status(self, ch: int) -> dict[str, Any]:
+        """State of TPDO ``ch``: configuration, latest committed data, flags and counters."""
+        async with self._pdo_lock:
+            await self._pdo_sel(False, ch)
+            cfg = await self.read_fields("PDO_CFG")
+            lo = await self.read("PDO_DATA_LO")
+            hi = await self.read("PDO_DATA_HI")
+            cmd = await self.read_fields("PDO_CMD")
+            seq = await self.read_fields("PDO_SEQ")
+            late = await self.read_fields("PDO_LATE")
+            inhibit = await self.read_fields("PDO_INHIBIT")
+        return {"cob_id": cfg["COB_ID"], "valid": bool(cfg["VALID"]), "rtr": bool(cfg["RTR"]),
+                "dlc": cfg["DLC"], "tt": cfg["TT"], "inhibit_100us": inhibit["TIME_100US"],
+                "data": (lo | hi << 32).to_bytes(8, "little"), "pending": bool(cmd["PENDING"]),
+                "due": bool(cmd["DUE"]), "inhibited": bool(cmd["INHIBITED"]),
+                "seq": seq["SEQ"], "late": late["LATE"]}
+
+    async def rpdo_config(self, ch: int, cob_id: int, dlc: int, tt: int = TT_EVENT, *,
+                          valid: bool = True, rtr_poll: bool = False) -> None:
+        """Configure RPDO ``ch`` (the master receives): expected DLC, transmission type of the
+        producer (0..240 synchronous, 254/255 event), RTR poll after every SYNC. Restarts the
+        missed-cycle monitor."""
+        if not 0 <= dlc <= 8:
+            raise ValueError(f"DLC {dlc}: 0..8")
+        async with self._pdo_lock:
+            await self._pdo_sel(True, ch)
+            await self.write("PDO_CFG", R.make("PDO_CFG", COB_ID=cob_id, RTR=int(rtr_poll),
+                                               VALID=int(valid), DLC=dlc, TT=tt))
+
+    async def rpdo_read(self, ch: int, ack: bool = True) -> dict[str, Any]:
+        """Snapshot of RPDO ``ch``: ``data`` (DLC bytes), ``seq``, ``sync_count``, ``new`` (data
+        not acknowledged before this read), ``len_err``, ``missed``. ``ack`` clears NEW in the
+        same cycle as the snapshot (a PDO arriving later sets it again)."""
+        async with self._pdo_lock:
+            await self._pdo_sel(True, ch, ack)
+            cfg = await self.read_fields("PDO_CFG")
+            lo = await self.read("PDO_DATA_LO")
+            hi = await self.read("PDO_DATA_HI")
+            cmd = await self.read_fields("PDO_CMD")
+            seq = await self.read_fields("PDO_SEQ")
+            err = await self.read_fields("PDO_ERR")
+        data = (lo | hi << 32).to_bytes(8, "little")
+        return {"data": data[:min(cfg["DLC"], 8)], "seq": seq["SEQ"],
+                "sync_count": seq["SYNC_COUNT"], "new": bool(cmd["NEW"]),
+                "poll_due": bool(cmd["POLL_DUE"]), "len_err": err["LEN_ERR"],
+                "missed": err["MISSED"]}
+
+    async def rpdo_new(self) -> int:
+        """NEW flags of every RPDO channel (bit k = channel k)."""
+        return await self.read("PDO_RX_NEW")
+
+    async def rpdo_ack(self, mask: int) -> None:
+        """Clear the NEW flags of the channels in ``mask``."""
+        await self.write("PDO_RX_NEW", mask)
+
+    async def pdo_counters(self) -> dict[str, int]:
+        """Every PDO_CNT_* register, keyed by its lower-case name without ``PDO_CNT_``."""
+        return {name.lower(): await self.read(f"PDO_CNT_{name}") for name in PDO_COUNTER_NAMES}
+
+    async def pdo_clear_counters(self) -> None:
+        """Clear PDO_CNT_* and every channel's LATE / LEN_ERR / MISSED counter."""
+        await self.write("PDO_CTRL", R.PDO_CTRL_CLR_COUNTERS)

@@ -1,0 +1,897 @@
+"""Bench of ``canopen_sdo_client``: CiA 301 SDO transfers against the reference slave.
+
+The bench plays the master FSM: it takes the DUT's request frames (``tx_req_o`` /
+``tx_ack_i``) and sends them through a Python CAN node (``QueueNode``) on the timing-accurate
+bus model at 1 Mbit/s, where :class:`sim_models.canopen_slave.CanopenSlave` (node 5) answers
+with the ``canopen`` library's SDO server; the slave's responses (580h..5FFh) are handed back
+to the DUT with ``rx_valid_i``. A "direct" mode skips the bus and answers in the cycle after
+``tx_ack_i`` (worst case for the DUT's internal timing).
+
+Checkers, all independent of the RTL:
+
+* every frame the DUT sends is compared byte for byte with the frames CiA 301 prescribes for
+  the transfer (``expected_download`` / ``expected_upload`` / ``abort_frame`` below);
+* downloaded data is compared with the slave's object dictionary, uploaded data with the
+  buffer read back through the host port (bytes beyond the transfer must stay untouched);
+* every received frame must be answered by ``rx_done_o`` within 4 cycles, ``rx_reply_o``
+  must come with ``tx_req_o``, and a frame flagged ``rx_unexpected_o`` must not change
+  ``state_o``;
+* the abort code, ``abort_sent_o`` and ``size_o`` at ``done_o``; abort frames are also looked
+  for on the bus, and the server's record of the abort it received is checked.
+"""
+
+from __future__ import annotations
+
+import collections
+import random
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+import cocotb
+import pytest
+from cocotb.triggers import Event, FallingEdge, First, ReadOnly, RisingEdge, Timer
+
+from sim_models.can_bus import CanBus, QueueNode
+from sim_models.canopen_slave import CanopenSlave, NmtState, make_message
+from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
+from tb.tblib.clkrst import reset_active_low, start_clock
+from tb.tblib.model_clock import ModelClock, sim_time_ps
+from tb.tblib.runner import param, run_cocotb
+
+CLK_HZ = 10_000_000
+CLK_PS = 10**12 // CLK_HZ
+BITRATE = 1_000_000
+NODE = 5
+DOMAIN = 0x2000  # DOMAIN, rw: any length is legal
+RX_LATENCY_MAX = 4  # rx_done_o at most 4 cycles after rx_valid_i (block requirement)
+
+# CiA 301 abort codes (Table 22), written here independently of the RTL package
+ABORT_TOGGLE = 0x0503_0000
+ABORT_TIMEOUT = 0x0504_0000
+ABORT_CS = 0x0504_0001
+ABORT_OUT_OF_MEM = 0x0504_0005
+ABORT_READ_WO = 0x0601_0001
+ABORT_WRITE_RO = 0x0601_0002
+ABORT_NOT_IN_OD = 0x0602_0000
+ABORT_LENGTH = 0x0607_0010
+ABORT_NO_SUB = 0x0609_0011
+ABORT_NO_DATA = 0x0800_0024  # the library's answer to an upload of an empty object
+ABORT_NO_VALUE = 0x060A_0023  # the library's answer for a DOMAIN never written
+ABORT_GENERAL = 0x0800_0000
+
+
+# ============================================================================ reference frames
+def _mux(index: int, sub: int) -> bytes:
+    return struct.pack("<HB", index, sub)
+
+
+def expected_download(index: int, sub: int, data: bytes) -> list[bytes]:
+    """Frames a CiA 301 client sends for a download (the bench's own encoder)."""
+    n = len(data)
+    if 1 <= n <= 4:  # expedited, size indicated: ccs=1, n=4-size, e=1, s=1
+        return [bytes([0x20 | (4 - n) << 2 | 0x03]) + _mux(index, sub) + data.ljust(4, b"\0")]
+    frames = [bytes([0x21]) + _mux(index, sub) + struct.pack("<L", n)]  # e=0, s=1, size
+    chunks = [data[i:i + 7] for i in range(0, n, 7)] or [b""]  # size 0: one empty segment
+    for k, chunk in enumerate(chunks):
+        last = int(k == len(chunks) - 1)
+        frames.append(bytes([(k & 1) << 4 | (7 - len(chunk)) << 1 | last]) + chunk.ljust(7, b"\0"))
+    return frames
+
+
+def expected_upload(index: int, sub: int, n_segments: int) -> list[bytes]:
+    frames = [bytes([0x40]) + _mux(index, sub) + bytes(4)]
+    frames += [bytes([0x60 | (k & 1) << 4]) + bytes(7) for k in range(n_segments)]
+    return frames
+
+
+def n_upload_segments(size: int) -> int:
+    return 0 if size <= 4 else -(-size // 7)
+
+
+def abort_frame(index: int, sub: int, code: int) -> bytes:
+    return bytes([0x80]) + _mux(index, sub) + struct.pack("<L", code)
+
+
+def with_byte0(msg: can.Message, fn: Callable[[int], int]) -> can.Message:
+    data = bytearray(msg.data)
+    data[0] = fn(data[0])
+    return make_message(msg.arbitration_id, bytes(data))
+
+
+# ============================================================================ bench
+@dataclass
+class Result:
+    """What the host sees at done_o, plus the frames the DUT sent for the transfer."""
+
+    error: int
+    code: int
+    sent: int
+    size: int
+    busy_at_done: int
+    frames: list[bytes]
+    ids: list[int]
+    t_req_ps: int
+    t_done_ps: int
+    tx_times: list[int] = field(default_factory=list)
+    n_bus0: int = 0  #: frames the bench's master node had sent on the bus before the request
+
+
+@dataclass
+class RxRecord:
+    t_ps: int
+    msg: can.Message
+    latency: int
+    reply: int
+    unexpected: int
+    state_before: int
+    state_after: int
+
+
+class BenchMaster(QueueNode):
+    """The master's CAN controller: sends what the FSM gives it, passes received frames on."""
+
+    def __init__(self, name: str, bitrate: int, on_frame: Callable[[can.Message], None]):
+        super().__init__(name, bitrate)
+        self._on_frame = on_frame
+
+    def on_rx(self, msg: can.Message, t_ps: int) -> None:
+        super().on_rx(msg, t_ps)
+        self._on_frame(msg)
+
+
+class TB:
+    """DUT + bench FSM (tx taker, rx feeder, ms tick) + CAN bus + reference slave node 5."""
+
+    def __init__(self, dut, *, direct: bool = False, ack_node: bool = False) -> None:
+        self.dut = dut
+        self.buf_bytes = param("BUF_BYTES")
+        self.direct = direct
+        start_clock(dut.clk_i, CLK_HZ)
+        self.sched = Scheduler()
+        self.sched.run_until(sim_time_ps())
+        self.clock = ModelClock(self.sched)
+        self.bus = CanBus(self.sched, BITRATE)
+        self.master = BenchMaster("master", BITRATE, self._from_bus)
+        self.bus.attach(self.master)
+        self.slave = CanopenSlave(self.sched, NODE, bitrate_bps=BITRATE,
+                                  boot_time_ps=20 * PS_PER_US)
+        if not direct:
+            self.bus.attach(self.slave)
+        if ack_node:  # a passive node that acknowledges frames when the slave is off
+            self.bus.attach(QueueNode("acker", BITRATE))
+        # bench FSM state
+        self.take_tx = True
+        self._take_event = Event()
+        self.tx_log: list[tuple[int, can.Message]] = []
+        self.rx_queue: collections.deque[tuple[can.Message, bool]] = collections.deque()
+        self._rx_event = Event()
+        self.rx_log: list[RxRecord] = []
+        self.max_rx_latency = RX_LATENCY_MAX
+        #: applied to every frame from the server before the DUT sees it (None = drop it)
+        self.mangle: Callable[[can.Message], can.Message | None] | None = None
+        self.done_count = 0
+        self.t_req_edge = 0
+        for sig in (dut.tick_ms_i, dut.req_valid_i, dut.req_upload_i, dut.req_node_i,
+                    dut.req_index_i, dut.req_subindex_i, dut.req_size_i, dut.cob_req_i,
+                    dut.cob_resp_i, dut.timeout_ms_i, dut.buf_addr_i, dut.buf_we_i,
+                    dut.buf_wdata_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_dlc_i,
+                    dut.rx_data_i):
+            sig.value = 0
+        cocotb.start_soon(self._ticker())
+        cocotb.start_soon(self._tx_taker())
+        cocotb.start_soon(self._rx_feeder())
+        cocotb.start_soon(self._done_counter())
+
+    # ------------------------------------------------------------------ bench FSM
+    async def _ticker(self) -> None:
+        """tick_ms_i: one clock cycle high every 1 ms (aligned to falling edges)."""
+        await FallingEdge(self.dut.clk_i)
+        while True:
+            self.dut.tick_ms_i.value = 1
+            await Timer(CLK_PS, "ps")
+            self.dut.tick_ms_i.value = 0
+            await Timer(PS_PER_MS - CLK_PS, "ps")
+
+    async def _tx_taker(self) -> None:
+        """Take every frame the DUT requests (tx_ack_i at the first falling edge) and send it."""
+        dut = self.dut
+        while True:
+            if dut.tx_req_o.value != 1:
+                await RisingEdge(dut.tx_req_o)
+            await FallingEdge(dut.clk_i)
+            while not self.take_tx:
+                self._take_event.clear()
+                await self._take_event.wait()
+                await FallingEdge(dut.clk_i)
+            if dut.tx_req_o.value != 1:
+                continue  # withdrawn
+            assert int(dut.tx_dlc_o.value) == 8, "SDO frames have DLC 8"
+            msg = make_message(int(dut.tx_id_o.value),
+                               int(dut.tx_data_o.value).to_bytes(8, "little"))
+            dut.tx_ack_i.value = 1
+            await RisingEdge(dut.clk_i)
+            dut.tx_ack_i.value = 0
+            self.tx_log.append((sim_time_ps(), msg))
+            self._deliver(msg)
+            await ReadOnly()
+
+    def _deliver(self, msg: can.Message) -> None:
+        if not self.direct:
+            self.clock.sync()
+            self.master.send(msg)
+            return
+        # direct: the server answers at once, without the bus
+        now = self.clock.sync()
+        self.slave.on_rx(msg, now)
+        for m in self.slave.tx_queue:
+            self.slave.on_tx_done(m, now)
+            self._from_bus(m)
+
+    def _from_bus(self, msg: can.Message) -> None:
+        # the FSM only hands SDO responses (580h..5FFh) to the client
+        if not msg.is_remote_frame and 0x580 <= msg.arbitration_id <= 0x5FF:
+            self.rx_queue.append((msg, True))
+            self._rx_event.set()
+
+    def inject(self, msg: can.Message) -> None:
+        """Hand a frame to the DUT next (not mangled), e.g. a stray frame during a transfer."""
+        self.rx_queue.appendleft((msg, False))
+        self._rx_event.set()
+
+    async def _rx_feeder(self) -> None:
+        dut = self.dut
+        while True:
+            while not self.rx_queue:
+                self._rx_event.clear()
+                await self._rx_event.wait()
+            msg, may_mangle = self.rx_queue.popleft()
+            if may_mangle and self.mangle is not None:
+                msg = self.mangle(msg)
+                if msg is None:
+                    continue
+            await FallingEdge(dut.clk_i)
+            state_before = int(dut.state_o.value)
+            dut.rx_id_i.value = msg.arbitration_id
+            dut.rx_dlc_i.value = msg.dlc
+            dut.rx_data_i.value = int.from_bytes(bytes(msg.data).ljust(8, b"\0"), "little")
+            dut.rx_valid_i.value = 1
+            await RisingEdge(dut.clk_i)  # rx_valid_i sampled here
+            dut.rx_valid_i.value = 0
+            await ReadOnly()
+            latency = 1  # rx_done_o seen now is sampled at the next edge
+            while dut.rx_done_o.value != 1:
+                assert latency < self.max_rx_latency, \
+                    f"rx_done_o not within {self.max_rx_latency} cycles of rx_valid_i"
+                await RisingEdge(dut.clk_i)
+                await ReadOnly()
+                latency += 1
+            rec = RxRecord(sim_time_ps(), msg, latency, int(dut.rx_reply_o.value),
+                           int(dut.rx_unexpected_o.value), state_before,
+                           int(dut.state_o.value))
+            self.rx_log.append(rec)
+            if rec.reply:
+                assert dut.tx_req_o.value == 1, "rx_reply_o without tx_req_o"
+                assert not rec.unexpected, "rx_reply_o together with rx_unexpected_o"
+            if rec.unexpected:
+                assert rec.state_after == rec.state_before, \
+                    f"unexpected frame changed state {rec.state_before} -> {rec.state_after}"
+
+    async def _done_counter(self) -> None:
+        while True:
+            await RisingEdge(self.dut.done_o)
+            self.done_count += 1
+
+    # ------------------------------------------------------------------ host side
+    async def start(self, operational: bool = False) -> None:
+        """Reset the DUT and wait for the slave's boot-up (and NMT start if asked)."""
+        await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
+        await self.wait_for(lambda: self.slave.nmt_state is NmtState.PRE_OPERATIONAL, 1000)
+        if operational:
+            self.clock.sync()
+            self.master.send(make_message(0x000, bytes([0x01, NODE])))
+            await self.wait_for(lambda: self.slave.nmt_state is NmtState.OPERATIONAL, 1000)
+
+    async def wait_for(self, cond: Callable[[], bool], timeout_us: float,
+                       step_us: float = 5) -> None:
+        t_end = sim_time_ps() + int(timeout_us * PS_PER_US)
+        while not cond():
+            assert sim_time_ps() < t_end, f"condition not met within {timeout_us} us"
+            await Timer(step_us, "us")
+
+    def allow_tx(self, on: bool) -> None:
+        self.take_tx = on
+        if on:
+            self._take_event.set()
+
+    async def write_buf(self, data: bytes, offset_words: int = 0) -> None:
+        dut = self.dut
+        data = data + bytes(-len(data) % 4)
+        for w in range(len(data) // 4):
+            await FallingEdge(dut.clk_i)
+            dut.buf_addr_i.value = offset_words + w
+            dut.buf_wdata_i.value = int.from_bytes(data[4 * w:4 * w + 4], "little")
+            dut.buf_we_i.value = 1
+        await FallingEdge(dut.clk_i)
+        dut.buf_we_i.value = 0
+
+    async def read_buf(self, n: int) -> bytes:
+        dut = self.dut
+        out = bytearray()
+        for w in range(-(-n // 4)):
+            await FallingEdge(dut.clk_i)
+            dut.buf_addr_i.value = w
+            await RisingEdge(dut.clk_i)  # address sampled, word registered at this edge
+            await ReadOnly()
+            out += int(dut.buf_rdata_o.value).to_bytes(4, "little")
+        return bytes(out[:n])
+
+    async def request(self, *, upload: bool, index: int, sub: int = 0, size: int = 0,
+                      node: int = NODE, timeout_ms: int = 20, cob_req: int = 0,
+                      cob_resp: int = 0) -> None:
+        """One req_valid_i pulse with the request inputs."""
+        dut = self.dut
+        await FallingEdge(dut.clk_i)
+        dut.req_upload_i.value = int(upload)
+        dut.req_node_i.value = node
+        dut.req_index_i.value = index
+        dut.req_subindex_i.value = sub
+        dut.req_size_i.value = size
+        dut.cob_req_i.value = cob_req
+        dut.cob_resp_i.value = cob_resp
+        dut.timeout_ms_i.value = timeout_ms
+        dut.req_valid_i.value = 1
+        await RisingEdge(dut.clk_i)
+        dut.req_valid_i.value = 0
+        self.t_req_edge = sim_time_ps()  # the edge that sampled req_valid_i
+
+    async def wait_done(self, n_tx0: int, t_req: int, limit_ms: float = 100,
+                        n_bus0: int = 0) -> Result:
+        dut = self.dut
+        await First(RisingEdge(dut.done_o), Timer(limit_ms, "ms"))
+        await ReadOnly()
+        assert dut.done_o.value == 1, f"transfer did not end within {limit_ms} ms"
+        log = self.tx_log[n_tx0:]
+        return Result(error=int(dut.error_o.value), code=int(dut.abort_code_o.value),
+                      sent=int(dut.abort_sent_o.value), size=int(dut.size_o.value),
+                      busy_at_done=int(dut.busy_o.value),
+                      frames=[bytes(m.data) for _, m in log],
+                      ids=[m.arbitration_id for _, m in log], t_req_ps=t_req,
+                      t_done_ps=sim_time_ps(), tx_times=[t for t, _ in log], n_bus0=n_bus0)
+
+    async def transfer(self, *, limit_ms: float = 100, **req) -> Result:
+        dut = self.dut
+        await FallingEdge(dut.clk_i)
+        assert dut.busy_o.value == 0, "request while busy"
+        n_tx0 = len(self.tx_log)
+        n_bus0 = len(self.bus_frames_from_master())
+        t_req = sim_time_ps()
+        await self.request(**req)
+        return await self.wait_done(n_tx0, t_req, limit_ms, n_bus0)
+
+    async def download(self, index: int, sub: int, data: bytes, **kw) -> Result:
+        await self.write_buf(data)
+        return await self.transfer(upload=False, index=index, sub=sub, size=len(data), **kw)
+
+    async def upload(self, index: int, sub: int = 0, **kw) -> Result:
+        return await self.transfer(upload=True, index=index, sub=sub, **kw)
+
+    def bus_frames_from_master(self) -> list[bytes]:
+        return [bytes(r.msg.data) for r in self.bus.records
+                if r.kind == "frame" and r.sender == "master"]
+
+    async def wait_bus_frame(self, res: Result, payload: bytes, timeout_us: float = 1000) -> None:
+        """Wait until ``payload`` was sent on the bus after the request of ``res``."""
+        await self.wait_for(lambda: payload in self.bus_frames_from_master()[res.n_bus0:],
+                            timeout_us)
+
+
+# ============================================================================ checkers
+def check_ok(res: Result, size: int) -> None:
+    assert res.error == 0, f"transfer aborted: code {res.code:08X}, sent by client={res.sent}"
+    assert res.code == 0 and res.sent == 0
+    assert res.size == size, f"size_o = {res.size}, expected {size}"
+    assert res.busy_at_done == 0, "busy_o still 1 at done_o"
+
+
+def check_abort(res: Result, code: int, *, sent: bool, size: int | None = None,
+                abort_frames: int | None = None) -> None:
+    """``abort_frames``: abort frames the client must have sent (default: 1 if ``sent``)."""
+    assert res.error == 1, "transfer should have ended in an abort"
+    assert res.code == code, f"abort code {res.code:08X}, expected {code:08X}"
+    assert res.sent == int(sent), f"abort_sent_o = {res.sent}, expected {int(sent)}"
+    if size is not None:
+        assert res.size == size, f"size_o = {res.size}, expected {size}"
+    client_aborts = [f for f in res.frames if f[0] == 0x80]
+    n_abort = int(sent) if abort_frames is None else abort_frames
+    assert len(client_aborts) == n_abort, f"client abort frames: {client_aborts}"
+    assert res.busy_at_done == 0
+
+
+def check_frames(res: Result, expected: list[bytes], cob: int = 0x600 + NODE) -> None:
+    assert res.frames == expected, (
+        "frames sent:\n  " + "\n  ".join(f.hex(" ") for f in res.frames)
+        + "\nexpected:\n  " + "\n  ".join(f.hex(" ") for f in expected))
+    assert all(i == cob for i in res.ids), [hex(i) for i in res.ids]
+
+
+def check_data(got: bytes, expected: bytes, what: str = "data") -> None:
+    assert got == expected, f"{what}: got {got.hex(' ')}, expected {expected.hex(' ')}"
+
+
+# ============================================================================ tests
+@cocotb.test(timeout_time=400, timeout_unit="ms")
+async def run_every_size_download_upload(dut):
+    """Purpose: expedited and segmented download and upload of every size 0..64 bytes.
+
+    Verifies: for each size the DUT's frames equal the CiA 301 sequence (expedited initiate for
+    1..4 bytes, else initiate with the size then segments with alternating toggle, n and c;
+    size 0 = one empty last segment); the slave's 2000h holds exactly the downloaded bytes; the
+    upload writes exactly those bytes to the buffer (the bytes behind stay untouched) with
+    size_o = size; an empty object's upload ends with the server's abort 0800 0024h.
+    """
+    tb = TB(dut)
+    await tb.start()
+    rng = random.Random(1)
+    fill = bytes([0xA5]) * tb.buf_bytes
+    for size in range(65):
+        data = bytes(rng.getrandbits(8) for _ in range(size))
+        res = await tb.download(DOMAIN, 0, data)
+        check_ok(res, size)
+        check_frames(res, expected_download(DOMAIN, 0, data))
+        check_data(tb.slave.read_raw(DOMAIN), data, f"slave 2000h after download of {size}")
+        await tb.write_buf(fill)
+        res = await tb.upload(DOMAIN)
+        if size == 0:
+            check_abort(res, ABORT_NO_DATA, sent=False, size=0)
+            continue
+        check_ok(res, size)
+        check_frames(res, expected_upload(DOMAIN, 0, n_upload_segments(size)))
+        back = await tb.read_buf(min(size + 8, tb.buf_bytes))
+        check_data(back[:size], data, f"upload of {size}")
+        check_data(back[size:], fill[:len(back) - size], "bytes behind the upload")
+    assert max(r.latency for r in tb.rx_log) <= RX_LATENCY_MAX
+    assert not any(r.unexpected for r in tb.rx_log)
+
+
+@cocotb.test(timeout_time=200, timeout_unit="ms")
+async def run_full_buffer_and_typed_objects(dut):
+    """Purpose: a BUF_BYTES transfer each way and the slave's typed objects, in operational.
+
+    Verifies: download then upload of BUF_BYTES random bytes round-trips through 2000h (slave
+    OD compared too); uploads of 1008h (71-character string, segmented), 1000h (U32),
+    1001h (U8, n = 3), 1018h sub 1/4 equal the slave's values; a U16 written to 6040h by an
+    expedited download reads back from the OD and by upload.
+    """
+    tb = TB(dut)
+    await tb.start(operational=True)
+    rng = random.Random(2)
+    n = tb.buf_bytes
+    data = bytes(rng.getrandbits(8) for _ in range(n))
+    res = await tb.download(DOMAIN, 0, data)
+    check_ok(res, n)
+    check_frames(res, expected_download(DOMAIN, 0, data))
+    check_data(tb.slave.read_raw(DOMAIN), data, "slave 2000h")
+    await tb.write_buf(bytes(n))
+    res = await tb.upload(DOMAIN)
+    check_ok(res, n)
+    check_data(await tb.read_buf(n), data, "upload of BUF_BYTES")
+    for index, sub in ((0x1008, 0), (0x1000, 0), (0x1001, 0), (0x1018, 1), (0x1018, 4)):
+        raw = tb.slave.read_raw(index, sub)
+        res = await tb.upload(index, sub)
+        check_ok(res, len(raw))
+        check_frames(res, expected_upload(index, sub, n_upload_segments(len(raw))))
+        check_data(await tb.read_buf(len(raw)), raw, f"{index:04X}:{sub}")
+    res = await tb.download(0x6040, 0, struct.pack("<H", 0x0006))
+    check_ok(res, 2)
+    assert tb.slave.read(0x6040) == 0x0006
+    res = await tb.upload(0x6040)
+    check_ok(res, 2)
+    check_data(await tb.read_buf(2), b"\x06\x00", "6040h")
+    assert tb.slave.nmt_state is NmtState.OPERATIONAL
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_server_aborts(dut):
+    """Purpose: aborts sent by the server end the transfer with the server's code.
+
+    Verifies: upload of 2000h never written (060A 0023h), missing object 3000h on expedited
+    and segmented download and on upload (0602 0000h), missing subindex (0609 0011h), write
+    to read-only 2001h expedited and segmented (0601 0002h), read of write-only 2002h
+    (0601 0001h), wrong length on a U32 expedited (0607 0010h) and segmented (0607 0010h
+    after the last segment, size_o = the 7 bytes the server had confirmed): error_o = 1,
+    abort_sent_o = 0, no abort frame from the client.
+    """
+    tb = TB(dut)
+    await tb.start()
+    check_abort(await tb.upload(DOMAIN), ABORT_NO_VALUE, sent=False, size=0)
+    res = await tb.download(0x3000, 0, b"\x01\x02\x03\x04")
+    check_abort(res, ABORT_NOT_IN_OD, sent=False, size=0)
+    check_frames(res, expected_download(0x3000, 0, b"\x01\x02\x03\x04"))
+    res = await tb.download(0x3000, 0, bytes(10))
+    check_abort(res, ABORT_NOT_IN_OD, sent=False, size=0)
+    check_frames(res, expected_download(0x3000, 0, bytes(10))[:1])
+    check_abort(await tb.upload(0x3000), ABORT_NOT_IN_OD, sent=False, size=0)
+    check_abort(await tb.upload(0x1018, 9), ABORT_NO_SUB, sent=False, size=0)
+    check_abort(await tb.download(0x2001, 0, b"\x00\x00\x00\x00"), ABORT_WRITE_RO, sent=False)
+    check_abort(await tb.download(0x2001, 0, bytes(8)), ABORT_WRITE_RO, sent=False)
+    check_abort(await tb.upload(0x2002), ABORT_READ_WO, sent=False, size=0)
+    check_abort(await tb.download(0x607A, 0, b"\x01\x02"), ABORT_LENGTH, sent=False, size=0)
+    res = await tb.download(0x607A, 0, bytes(range(8)))
+    check_abort(res, ABORT_LENGTH, sent=False, size=7)
+    check_frames(res, expected_download(0x607A, 0, bytes(range(8))))
+    assert tb.slave.read(0x607A) == 0, "the refused value must not be stored"
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_client_length_and_memory_aborts(dut):
+    """Purpose: the client's own size checks on uploads, and the local size check.
+
+    Verifies: an indicated size above BUF_BYTES is aborted 0504 0005h before any segment; with
+    the size hidden (s = 0) the client aborts 0504 0005h at the segment that would overflow
+    the buffer; an indicated size larger than the data (c = 1 too early) and smaller than the
+    data are aborted 0607 0010h: each abort frame has the exact CiA 301 content on the bus and
+    the server received the code; a download of more than BUF_BYTES is refused without any
+    frame (error_o, 0504 0005h).
+    """
+    tb = TB(dut)
+    await tb.start()
+    nb = tb.buf_bytes
+    big = bytes(random.Random(3).getrandbits(8) for _ in range(nb + 44))
+    tb.clock.sync()
+    tb.slave.write(DOMAIN, 0, big)
+    res = await tb.upload(DOMAIN)
+    check_abort(res, ABORT_OUT_OF_MEM, sent=True, size=0)
+    check_frames(res, expected_upload(DOMAIN, 0, 0) + [abort_frame(DOMAIN, 0, ABORT_OUT_OF_MEM)])
+    await tb.wait_bus_frame(res, abort_frame(DOMAIN, 0, ABORT_OUT_OF_MEM))
+    assert tb.slave.node.sdo.last_received_error == ABORT_OUT_OF_MEM
+
+    def hide_size(msg: can.Message) -> can.Message:  # initiate upload response: s = 0
+        if msg.data[0] & 0xE0 == 0x40:
+            data = bytearray(msg.data)
+            data[0] &= ~0x01
+            data[4:8] = bytes(4)
+            return make_message(msg.arbitration_id, bytes(data))
+        return msg
+
+    tb.mangle = hide_size
+    res = await tb.upload(DOMAIN)
+    n_ok = nb // 7 * 7  # whole segments that still fit
+    check_abort(res, ABORT_OUT_OF_MEM, sent=True, size=n_ok)
+    check_frames(res, expected_upload(DOMAIN, 0, nb // 7 + 1)
+                 + [abort_frame(DOMAIN, 0, ABORT_OUT_OF_MEM)])
+    check_data(await tb.read_buf(n_ok), big[:n_ok], "bytes before the overflow")
+
+    name = tb.slave.read_raw(0x1008)  # 71 bytes, 11 segments
+    for delta in (+3, -6):
+        def fake_size(msg: can.Message, delta=delta) -> can.Message:
+            if msg.data[0] & 0xE0 == 0x40:
+                data = bytearray(msg.data)
+                struct.pack_into("<L", data, 4, len(name) + delta)
+                return make_message(msg.arbitration_id, bytes(data))
+            return msg
+
+        tb.mangle = fake_size
+        res = await tb.upload(0x1008)
+        segs = 11 if delta > 0 else 10  # too small: detected when the total passes it
+        # the rejected segment is not written: 10 segments (70 bytes) resp. 9 (63 bytes)
+        check_abort(res, ABORT_LENGTH, sent=True, size=70 if delta > 0 else 63)
+        check_frames(res, expected_upload(0x1008, 0, segs)
+                     + [abort_frame(0x1008, 0, ABORT_LENGTH)])
+        await tb.wait_bus_frame(res, abort_frame(0x1008, 0, ABORT_LENGTH))
+        assert tb.slave.node.sdo.last_received_error == ABORT_LENGTH
+        tb.slave.node.sdo.last_received_error = 0
+    tb.mangle = None
+
+    n_bus = len(tb.bus_frames_from_master())
+    res = await tb.transfer(upload=False, index=DOMAIN, size=nb + 1)
+    check_abort(res, ABORT_OUT_OF_MEM, sent=True, size=0, abort_frames=0)
+    assert res.frames == [], "a refused request sends no frame"
+    assert res.t_done_ps - res.t_req_ps <= 3 * CLK_PS
+    await Timer(300, "us")
+    assert len(tb.bus_frames_from_master()) == n_bus
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_timeouts(dut):
+    """Purpose: no response (slave powered off) and no frame taken never hang the client.
+
+    Verifies: an upload to a powered-off slave ends with the client's abort 0504 0000h, whose
+    frame is on the bus and is requested between timeout_ms_i and timeout_ms_i + 1 ms after
+    the request was taken; a segmented download whose server disappears after two segments
+    ends the same way after the third segment; when the FSM never takes the request the
+    transfer ends after the timeout with 0504 0000h, tx_req_o withdrawn and no frame sent;
+    timeout_ms_i = 0 waits without limit.
+    """
+    tb = TB(dut, ack_node=True)
+    await tb.start()
+    tb.clock.sync()
+    tb.slave.power_off()
+    res = await tb.upload(0x1000, timeout_ms=3)
+    check_abort(res, ABORT_TIMEOUT, sent=True, size=0)
+    check_frames(res, expected_upload(0x1000, 0, 0) + [abort_frame(0x1000, 0, ABORT_TIMEOUT)])
+    waited = res.tx_times[1] - res.tx_times[0]
+    assert 3 * PS_PER_MS < waited <= 4 * PS_PER_MS + 10 * CLK_PS, f"waited {waited} ps"
+    await tb.wait_bus_frame(res, abort_frame(0x1000, 0, ABORT_TIMEOUT))
+
+    # server disappears during a segmented download
+    tb.clock.sync()
+    tb.slave.power_on()
+    await tb.wait_for(lambda: tb.slave.nmt_state is NmtState.PRE_OPERATIONAL, 1000)
+    seen = []
+
+    def power_off_after_two(msg: can.Message) -> can.Message:
+        seen.append(msg)
+        if len(seen) == 3:  # initiate response + 2 segment responses
+            tb.clock.sync()
+            tb.slave.power_off()
+        return msg
+
+    tb.mangle = power_off_after_two
+    data = bytes(range(40))
+    res = await tb.download(DOMAIN, 0, data, timeout_ms=2)
+    check_abort(res, ABORT_TIMEOUT, sent=True, size=14)
+    check_frames(res, expected_download(DOMAIN, 0, data)[:4]
+                 + [abort_frame(DOMAIN, 0, ABORT_TIMEOUT)])
+    await tb.wait_bus_frame(res, abort_frame(DOMAIN, 0, ABORT_TIMEOUT))
+    tb.mangle = None
+
+    # the FSM never takes the request
+    tb.allow_tx(False)
+    n_bus = len(tb.bus_frames_from_master())
+    res = await tb.upload(0x1000, timeout_ms=2)
+    check_abort(res, ABORT_TIMEOUT, sent=True, size=0, abort_frames=0)
+    assert res.frames == []
+    assert 2 * PS_PER_MS < res.t_done_ps - res.t_req_ps <= 3 * PS_PER_MS + 10 * CLK_PS
+    await RisingEdge(dut.clk_i)
+    await ReadOnly()
+    assert dut.tx_req_o.value == 0, "request not withdrawn"
+    tb.allow_tx(True)
+    await Timer(200, "us")
+    assert len(tb.bus_frames_from_master()) == n_bus
+
+    # timeout 0: still waiting after 8 ms
+    n_done = tb.done_count
+    await tb.request(upload=True, index=0x1000, timeout_ms=0)
+    await Timer(8, "ms")
+    assert dut.busy_o.value == 1 and tb.done_count == n_done
+    assert len(tb.tx_log[-1][1].data) == 8 and tb.tx_log[-1][1].data[0] == 0x40
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_toggle_errors(dut):
+    """Purpose: a response with the wrong toggle bit is answered by abort 0503 0000h.
+
+    Verifies: upload of 1008h with the 2nd segment response's toggle bit corrupted, and a
+    download with the 1st segment response's toggle corrupted: the client sends the abort
+    frame (exact content checked on the bus), the server records 0503 0000h, size_o counts
+    only the accepted segments and the slave's 2000h keeps its old content.
+    """
+    tb = TB(dut)
+    await tb.start()
+    count = {"seg": 0}
+
+    def flip_nth_segment(n: int, scs: int):
+        def mangle(msg: can.Message) -> can.Message:
+            if msg.data[0] & 0xE0 == scs:
+                count["seg"] += 1
+                if count["seg"] == n:
+                    return with_byte0(msg, lambda b: b ^ 0x10)
+            return msg
+        return mangle
+
+    tb.mangle = flip_nth_segment(2, 0x00)
+    res = await tb.upload(0x1008)
+    check_abort(res, ABORT_TOGGLE, sent=True, size=7)
+    check_frames(res, expected_upload(0x1008, 0, 2) + [abort_frame(0x1008, 0, ABORT_TOGGLE)])
+    await tb.wait_bus_frame(res, abort_frame(0x1008, 0, ABORT_TOGGLE))
+    assert tb.slave.node.sdo.last_received_error == ABORT_TOGGLE
+    check_data(await tb.read_buf(7), tb.slave.read_raw(0x1008)[:7], "first segment")
+
+    old = bytes(range(9))
+    tb.mangle = None
+    check_ok(await tb.download(DOMAIN, 0, old), 9)
+    tb.slave.node.sdo.last_received_error = 0
+    count["seg"] = 0
+    tb.mangle = flip_nth_segment(1, 0x20)
+    data = bytes(range(100, 120))
+    res = await tb.download(DOMAIN, 0, data)
+    check_abort(res, ABORT_TOGGLE, sent=True, size=0)
+    check_frames(res, expected_download(DOMAIN, 0, data)[:2]
+                 + [abort_frame(DOMAIN, 0, ABORT_TOGGLE)])
+    await tb.wait_bus_frame(res, abort_frame(DOMAIN, 0, ABORT_TOGGLE))
+    assert tb.slave.node.sdo.last_received_error == ABORT_TOGGLE
+    check_data(tb.slave.read_raw(DOMAIN), old, "2000h after the aborted download")
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_protocol_errors(dut):
+    """Purpose: responses that do not fit the transfer, and legal response variants.
+
+    Verifies: a subindex mismatch in the initiate upload response gives abort 0800 0000h; a
+    wrong command specifier (scs 2 answering an initiate download) and a DLC of 4 in a segment
+    response give 0504 0001h; an expedited response without size (s = 0) delivers 4 bytes; a
+    segmented upload without size indication (s = 0) delivers all 71 bytes of 1008h; an abort
+    frame for another multiplexer during a transfer is flagged unexpected and ignored.
+    """
+    tb = TB(dut)
+    await tb.start()
+
+    def on_cs(cs: int, fn: Callable[[can.Message], can.Message]):
+        def mangle(msg: can.Message) -> can.Message:
+            return fn(msg) if msg.data[0] & 0xE0 == cs else msg
+        return mangle
+
+    def set_byte(k: int, v: int) -> Callable[[can.Message], can.Message]:
+        def fn(msg: can.Message) -> can.Message:
+            data = bytearray(msg.data)
+            data[k] = v
+            return make_message(msg.arbitration_id, bytes(data))
+        return fn
+
+    tb.mangle = on_cs(0x40, set_byte(3, 0x07))  # initiate upload response for sub 7
+    res = await tb.upload(0x1000)
+    check_abort(res, ABORT_GENERAL, sent=True, size=0)
+    check_frames(res, expected_upload(0x1000, 0, 0) + [abort_frame(0x1000, 0, ABORT_GENERAL)])
+
+    tb.mangle = on_cs(0x60, lambda m: with_byte0(m, lambda b: 0x40 | b & 0x1F))
+    res = await tb.download(DOMAIN, 0, bytes(12))
+    check_abort(res, ABORT_CS, sent=True, size=0)
+    check_frames(res, expected_download(DOMAIN, 0, bytes(12))[:1]
+                 + [abort_frame(DOMAIN, 0, ABORT_CS)])
+
+    tb.mangle = on_cs(0x00, lambda m: make_message(m.arbitration_id, bytes(m.data[:4])))
+    res = await tb.upload(0x1008)
+    check_abort(res, ABORT_CS, sent=True, size=0)
+    check_frames(res, expected_upload(0x1008, 0, 1) + [abort_frame(0x1008, 0, ABORT_CS)])
+    reply = [r for r in tb.rx_log if r.msg.dlc == 4]
+    assert reply and reply[-1].reply == 1 and reply[-1].unexpected == 0
+
+    tb.mangle = on_cs(0x40, lambda m: with_byte0(m, lambda b: b & ~0x0D))  # e=1, s=0, n=0
+    await tb.write_buf(bytes([0xEE]) * 8)
+    res = await tb.upload(0x1001)
+    check_ok(res, 4)
+    check_data(await tb.read_buf(8), b"\x00\x00\x00\x00" + bytes([0xEE]) * 4, "s = 0 upload")
+
+    tb.mangle = on_cs(0x40, lambda m: with_byte0(m, lambda b: b & ~0x01))  # s = 0
+    res = await tb.upload(0x1008)
+    name = tb.slave.read_raw(0x1008)
+    check_ok(res, len(name))
+    check_data(await tb.read_buf(len(name)), name, "1008h without size")
+
+    tb.mangle = None
+    stray = make_message(0x580 + NODE, abort_frame(0x1234, 5, ABORT_GENERAL))
+    n_rx = len(tb.rx_log)
+    n_tx0 = len(tb.tx_log)
+    t_req = sim_time_ps()
+    await tb.request(upload=True, index=0x1000)
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx0, 100, step_us=1)
+    tb.inject(stray)
+    res = await tb.wait_done(n_tx0, t_req)
+    check_ok(res, 4)
+    first = tb.rx_log[n_rx]
+    assert first.msg.data == stray.data and first.unexpected == 1 and first.reply == 0
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_unexpected_frames(dut):
+    """Purpose: frames that are not for the active transfer, busy requests, COB-ID override.
+
+    Verifies: while idle, a response-like frame from node 5, a frame from node 6 and a DLC-4
+    frame give rx_done_o with rx_unexpected_o, no reply, no state change, no transfer; during
+    a transfer (waiting for a response) a frame from node 6 is flagged unexpected and the
+    transfer completes normally; a req_valid_i pulse while busy is ignored (one done_o, only
+    the first request's frames); a host buffer write while busy is ignored (the download's
+    later segments still carry the original bytes); explicit cob_req_i / cob_resp_i override
+    the node-ID.
+    """
+    tb = TB(dut)
+    await tb.start()
+    stray = [make_message(0x585, bytes([0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0])),
+             make_message(0x586, bytes([0x43, 0x00, 0x10, 0x00, 1, 2, 3, 4])),
+             make_message(0x585, bytes([0x60, 0x00, 0x20, 0x00]))]
+    for msg in stray:
+        tb.inject(msg)
+    await tb.wait_for(lambda: len(tb.rx_log) == 3, 50, step_us=1)
+    for rec in tb.rx_log:
+        assert rec.unexpected == 1 and rec.reply == 0 and rec.state_after == 0
+    assert dut.busy_o.value == 0 and dut.tx_req_o.value == 0 and tb.done_count == 0
+
+    n_tx0 = len(tb.tx_log)
+    t_req = sim_time_ps()
+    await tb.request(upload=True, index=0x1008)
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx0, 100, step_us=1)
+    tb.inject(make_message(0x586, bytes([0x00] * 8)))
+    await tb.request(upload=False, index=DOMAIN, size=8)  # busy: ignored
+    res = await tb.wait_done(n_tx0, t_req)
+    name = tb.slave.read_raw(0x1008)
+    check_ok(res, len(name))
+    check_frames(res, expected_upload(0x1008, 0, n_upload_segments(len(name))))
+    check_data(await tb.read_buf(len(name)), name, "1008h")
+    assert sum(r.unexpected for r in tb.rx_log) == 4
+    await Timer(300, "us")
+    assert tb.done_count == 1 and dut.busy_o.value == 0
+
+    data = bytes(range(30, 60))
+    await tb.write_buf(data)
+    n_tx0 = len(tb.tx_log)
+    t_req = sim_time_ps()
+    await tb.request(upload=False, index=DOMAIN, size=len(data))
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx0, 100, step_us=1)
+    await tb.write_buf(b"\xde\xad\xbe\xef" * 3, offset_words=4)  # busy: ignored
+    res = await tb.wait_done(n_tx0, t_req)
+    check_ok(res, len(data))
+    check_frames(res, expected_download(DOMAIN, 0, data))
+    check_data(tb.slave.read_raw(DOMAIN), data, "2000h")
+
+    res = await tb.upload(0x1000, node=0x11, cob_req=0x605, cob_resp=0x585)
+    check_ok(res, 4)
+    check_data(await tb.read_buf(4), struct.pack("<L", tb.slave.read(0x1000)), "1000h")
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_zero_latency_server(dut):
+    """Purpose: responses arriving in the cycle after tx_ack_i (no bus, no FSM delay).
+
+    Verifies: segmented download and upload of 64 bytes and an upload of 1008h still work
+    when the response follows the request immediately (buffer read/write units busy), with
+    rx_done_o at most 4 cycles after rx_valid_i (the worst case is measured and must be 3);
+    tx_req_o rises 4 clock edges (download: buffer read first) resp. 0 edges (upload) after
+    the edge that samples req_valid_i (the bench takes the frame at the following edge).
+    """
+    tb = TB(dut, direct=True)
+    await tb.start()
+    data = bytes(random.Random(9).getrandbits(8) for _ in range(64))
+    res = await tb.download(DOMAIN, 0, data)
+    assert res.tx_times[0] - tb.t_req_edge == (4 + 1) * CLK_PS
+    check_ok(res, 64)
+    check_frames(res, expected_download(DOMAIN, 0, data))
+    check_data(tb.slave.read_raw(DOMAIN), data, "2000h")
+    await tb.write_buf(bytes(64))
+    res = await tb.upload(DOMAIN)
+    assert res.tx_times[0] - tb.t_req_edge == (0 + 1) * CLK_PS
+    check_ok(res, 64)
+    check_data(await tb.read_buf(64), data, "upload")
+    res = await tb.upload(0x1008)
+    check_ok(res, 71)
+    lat = [r.latency for r in tb.rx_log]
+    assert max(lat) == 3 and min(lat) == 2, f"rx latencies {sorted(set(lat))}"
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms", expect_fail=True)
+async def run_data_checker_can_fail(dut):
+    """Purpose: prove the data checker fails on a wrong expected value.
+
+    Verifies: a correct upload of 1000h compared with 0x00020193 (the real value is
+    0x00020192) makes check_data fail (expect_fail).
+    """
+    tb = TB(dut)
+    await tb.start()
+    res = await tb.upload(0x1000)
+    check_ok(res, 4)
+    check_data(await tb.read_buf(4), struct.pack("<L", 0x00020193), "1000h")
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms", expect_fail=True)
+async def run_frame_checker_can_fail(dut):
+    """Purpose: prove the frame checker fails on a wrong expected sequence.
+
+    Verifies: a correct 10-byte download compared with a sequence whose first segment has
+    toggle 1 makes check_frames fail (expect_fail).
+    """
+    tb = TB(dut)
+    await tb.start()
+    data = bytes(range(10))
+    res = await tb.download(DOMAIN, 0, data)
+    check_ok(res, 10)
+    wrong = expected_download(DOMAIN, 0, data)
+    wrong[1] = bytes([wrong[1][0] ^ 0x10]) + wrong[1][1:]
+    check_frames(res, wrong)
+
+
+# ============================================================================ pytest entry
+@pytest.mark.sim
+def test_canopen_sdo_client(request):
+    run_cocotb(toplevel="canopen_sdo_client", module="tb.test_canopen_sdo_client",
+               name=request.node.name, parameters={"BUF_BYTES": 256})
