@@ -58,7 +58,8 @@ async def run_bootup_and_nmt(dut):
 
     Verifies: each slave's boot-up message is seen by the master (NODE_STATUS.BOOTUP) and
     raises the NODE interrupt; NMT start all -> every slave operational (inside the slave);
-    stop node 2, pre-operational all, reset node 3 whose slot has AUTOSTART (boot-up again,
+    stop node 2, pre-operational node 1, stop all, pre-operational all, reset node 3 whose
+    slot has AUTOSTART (boot-up again,
     then the master starts it by itself: T15), reset communication all; every frame is the
     CiA 301 NMT frame [cs, node] on COB-ID 000h.
     """
@@ -82,6 +83,11 @@ async def run_bootup_and_nmt(dut):
     await nmt_and_wait(NMT_STOP, 2, lambda: tb.slave(2).nmt_state == NmtState.STOPPED,
                        "node 2 stopped")
     assert tb.slave(1).nmt_state == NmtState.OPERATIONAL
+    await nmt_and_wait(NMT_PREOP, 1, lambda: tb.slave(1).nmt_state
+                       == NmtState.PRE_OPERATIONAL, "node 1 pre-operational")
+    assert tb.slave(4).nmt_state == NmtState.OPERATIONAL
+    await nmt_and_wait(NMT_STOP, 0, lambda: all(
+        s.nmt_state == NmtState.STOPPED for s in tb.slaves), "all stopped")
     await nmt_and_wait(NMT_PREOP, 0, lambda: all(
         s.nmt_state == NmtState.PRE_OPERATIONAL for s in tb.slaves), "all pre-operational")
     # node 3 (slot 2) gets automatic start after boot-up: reset it, the master starts it
