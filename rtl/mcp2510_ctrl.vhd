@@ -364,33 +364,21 @@ architecture rtl of mcp2510_ctrl is
 
     end function byte_of;
 
-    -- READ STATUS byte -> TXREQ / TXnIF of TXB2..TXB0
+    -- three bits of a READ STATUS byte, TXB2..TXB0 order (masks from mcp2510_pkg)
 
-    function status_txreq (st : byte_t) return std_logic_vector is
-
-        variable v : std_logic_vector(2 downto 0);
-
-    begin
-
-        v(0) := or (st and MCP_STATUS_TXB0_TXREQ_C);
-        v(1) := or (st and MCP_STATUS_TXB1_TXREQ_C);
-        v(2) := or (st and MCP_STATUS_TXB2_TXREQ_C);
-        return v;
-
-    end function status_txreq;
-
-    function status_txif (st : byte_t) return std_logic_vector is
+    function status_bits (st : byte_t; m0 : byte_t; m1 : byte_t; m2 : byte_t)
+        return std_logic_vector is
 
         variable v : std_logic_vector(2 downto 0);
 
     begin
 
-        v(0) := or (st and MCP_STATUS_TX0IF_C);
-        v(1) := or (st and MCP_STATUS_TX1IF_C);
-        v(2) := or (st and MCP_STATUS_TX2IF_C);
+        v(0) := or (st and m0);
+        v(1) := or (st and m1);
+        v(2) := or (st and m2);
         return v;
 
-    end function status_txif;
+    end function status_bits;
 
     function buf_bit (n : natural) return std_logic_vector is
 
@@ -1080,8 +1068,10 @@ begin
                     elsif rsp_valid = '1' then
                         -- READ STATUS: bit 2/4/6 = TXB0/1/2 TXREQ, bit 3/5/7 = TX0/1/2IF
                         rd     := rsp_rdata;
-                        pend_v := status_txreq(byte_of(rd, 0));
-                        mask_v := "00000" & status_txif(byte_of(rd, 0));
+                        pend_v := status_bits(byte_of(rd, 0), MCP_STATUS_TXB0_TXREQ_C,
+                                              MCP_STATUS_TXB1_TXREQ_C, MCP_STATUS_TXB2_TXREQ_C);
+                        mask_v := "00000" & status_bits(byte_of(rd, 0), MCP_STATUS_TX0IF_C,
+                                                        MCP_STATUS_TX1IF_C, MCP_STATUS_TX2IF_C);
                         if (pending and pend_v) /= "000" and polls + 1 < abort_polls_c then
                             -- still on the wire (a long frame at a low bit rate): wait again
                             polls <= polls + 1;

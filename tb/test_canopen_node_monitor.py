@@ -27,6 +27,7 @@ from cocotb.triggers import Event, FallingEdge, First, ReadOnly, RisingEdge, Tim
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.canopen_slave import CanopenSlave, NmtState, build_slaves, make_message
 from sim_models.sim_time import PS_PER_MS, Scheduler
+from tb.tblib.bench_nodes import StrobeMonitor
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.model_clock import ModelClock, sim_time_ps
 from tb.tblib.runner import param, run_cocotb
@@ -113,8 +114,8 @@ class TB:
         self.count_changes: list[int] = []  # emcy_count_o went up
         self.time_ms = 0
         self.tx_enabled = True
-        self.events: dict[str, list[tuple[int, int]]] = {
-            k: [] for k in ("ev_lost", "ev_toggle", "ev_bootup", "ev_emcy")}
+        self.strobes = StrobeMonitor(dut, ["ev_lost", "ev_toggle", "ev_bootup", "ev_emcy"])
+        self.events = self.strobes.events
         for sig in (dut.tick_ms_i, dut.time_ms_i, dut.st_clear_i, dut.emcy_clear_i,
                     dut.emcy_pop_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_rtr_i,
                     dut.rx_dlc_i, dut.rx_data_i):
@@ -127,8 +128,6 @@ class TB:
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
         cocotb.start_soon(self._ms_timebase())
         cocotb.start_soon(self._fsm())
-        for name in self.events:
-            cocotb.start_soon(self._strobe_monitor(name))
         cocotb.start_soon(self._count_monitor())
         if self.want_slaves:
             self.clock.sync()
@@ -247,14 +246,6 @@ class TB:
         self.master.send(msg)
 
     # ------------------------------------------------------------------ monitors
-    async def _strobe_monitor(self, name: str) -> None:
-        sig = getattr(self.dut, f"{name}_o")
-        while True:
-            await ValueChange(sig)
-            v = sig.value
-            if v.is_resolvable and int(v):
-                self.events[name].append((sim_time_ps(), int(v)))
-
     async def _count_monitor(self) -> None:
         """Times at which emcy_count_o went up."""
         sig, last = self.dut.emcy_count_o, 0

@@ -36,6 +36,7 @@ from cocotb.triggers import Event, FallingEdge, First, ReadOnly, RisingEdge, Tim
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.canopen_slave import CanopenSlave, NmtState, make_message
 from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
+from tb.tblib.bench_nodes import ForwardingNode
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.model_clock import ModelClock, sim_time_ps
 from tb.tblib.runner import param, run_cocotb
@@ -129,18 +130,6 @@ class RxRecord:
     state_after: int
 
 
-class BenchMaster(QueueNode):
-    """The master's CAN controller: sends what the FSM gives it, passes received frames on."""
-
-    def __init__(self, name: str, bitrate: int, on_frame: Callable[[can.Message], None]):
-        super().__init__(name, bitrate)
-        self._on_frame = on_frame
-
-    def on_rx(self, msg: can.Message, t_ps: int) -> None:
-        super().on_rx(msg, t_ps)
-        self._on_frame(msg)
-
-
 class TB:
     """DUT + bench FSM (tx taker, rx feeder, ms tick) + CAN bus + reference slave node 5."""
 
@@ -153,7 +142,7 @@ class TB:
         self.sched.run_until(sim_time_ps())
         self.clock = ModelClock(self.sched)
         self.bus = CanBus(self.sched, BITRATE)
-        self.master = BenchMaster("master", BITRATE, self._from_bus)
+        self.master = ForwardingNode("master", BITRATE, self._from_bus)
         self.bus.attach(self.master)
         self.slave = CanopenSlave(self.sched, NODE, bitrate_bps=BITRATE,
                                   boot_time_ps=20 * PS_PER_US)

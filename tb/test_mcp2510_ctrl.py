@@ -23,13 +23,13 @@ from cocotb.triggers import (
     ReadOnly,
     RisingEdge,
     Timer,
-    ValueChange,
 )
 
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.mcp2510 import regs as R
 from sim_models.mcp2510.chip import Mcp2510
 from sim_models.sim_time import PS_PER_US, Scheduler
+from tb.tblib.bench_nodes import StrobeMonitor
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.mcp2510_pins import Mcp2510Pins
 from tb.tblib.metrics import record
@@ -81,17 +81,15 @@ class TB:
         )
         self.rx_frames: list[tuple[int, can.Message, int]] = []  # (t_ps, frame, buffer)
         self.rx_enabled = True
-        self.events: dict[str, list[tuple[int, int]]] = {
-            k: [] for k in ("tx_done", "tx_err", "tx_arb_lost", "tx_aborted", "rx_overflow")
-        }
+        self.strobes = StrobeMonitor(
+            dut, ["tx_done", "tx_err", "tx_arb_lost", "tx_aborted", "rx_overflow"])
+        self.events = self.strobes.events
         self.ints: list[tuple[int, int, int]] = []  # (t, CANINTF, EFLG)
         for sig in (dut.reinit_i, dut.tx_valid_i, dut.tx_fire_i, dut.tx_abort_i,
                     dut.status_req_i, dut.rx_ready_i, dut.tx_buf_i, dut.tx_txp_i, dut.tx_send_i,
                     dut.tx_id_i, dut.tx_ide_i, dut.tx_rtr_i, dut.tx_dlc_i, dut.tx_data_i):
             sig.value = 0
         cocotb.start_soon(self._rx_consumer())
-        for name in self.events:
-            cocotb.start_soon(self._strobe_monitor(name))
         cocotb.start_soon(self._int_monitor())
 
     # ------------------------------------------------------------------ monitors
@@ -116,14 +114,6 @@ class TB:
             await RisingEdge(dut.clk_i)
             dut.rx_ready_i.value = 0
             await ReadOnly()
-
-    async def _strobe_monitor(self, name: str) -> None:
-        sig = getattr(self.dut, f"{name}_o")
-        while True:
-            await ValueChange(sig)
-            v = sig.value
-            if v.is_resolvable and int(v):
-                self.events[name].append((sim_time_ps(), int(v)))
 
     async def _int_monitor(self) -> None:
         dut = self.dut
