@@ -20,8 +20,8 @@
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
 --   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation is only dispatched when its buffer is
 --   free, so St12 never waits behind a pending transmission.
---   PDO processing (St5) and PDO generation (St8) are where the PDO engine attaches (issue 6);
---   until then received PDOs are counted and acknowledged in St5 and no PDO is generated.
+--   canopen_pdo_engine handles St5 (received PDOs, RTRs on the master's PDOs) and St8 (PDOs
+--   due: synchronous after SYNC within the synchronous window, event, RTR replies, RPDO polls).
 -- =================================================================================================
 
 library ieee;
@@ -38,6 +38,8 @@ entity canopen_master_core is
         MAX_NODES         : positive range 1 to 16 := 8;          -- monitored node slots
         EMCY_DEPTH        : positive range 2 to 64 := 8;          -- EMCY FIFO entries
         SDO_BUF_BYTES     : positive               := 256;        -- SDO transfer buffer [bytes]
+        N_TPDO            : positive range 1 to 32 := 8;          -- PDO channels sent
+        N_RPDO            : positive range 1 to 32 := 8;          -- PDO channels received
         WATCHDOG_US       : positive               := 20_000;     -- longest wait in one state
         REINIT_BACKOFF_MS : positive               := 100;        -- between init attempts
         STATUS_POLL_MS    : positive               := 10          -- TEC/REC/EFLG refresh period
@@ -295,6 +297,25 @@ architecture rtl of canopen_master_core is
     signal mon_rx_malformed : std_logic;
 
     -- events and counter strobes towards the host block
+    -- PDO engine
+    signal pdo_reg_addr  : std_logic_vector(5 downto 0);
+    signal pdo_reg_we    : std_logic;
+    signal pdo_reg_wdata : std_logic_vector(31 downto 0);
+    signal pdo_reg_rdata : std_logic_vector(31 downto 0);
+    signal pdo_tx_req    : std_logic;
+    signal pdo_tx_id     : std_logic_vector(10 downto 0);
+    signal pdo_tx_rtr    : std_logic;
+    signal pdo_tx_dlc    : std_logic_vector(3 downto 0);
+    signal pdo_tx_data   : std_logic_vector(63 downto 0);
+    signal pdo_tx_ack    : std_logic;
+    signal pdo_rx_done   : std_logic;
+    signal pdo_rx_reply  : std_logic;
+    signal pdo_rx_unexp  : std_logic;
+    signal enter_pdo     : std_logic;
+    -- synchronous window (1007h semantics): open from each SYNC for SYNC_WINDOW_US, 0 = always
+    signal window_us   : unsigned(31 downto 0);
+    signal window_open : std_logic;
+
     signal ev_node_any    : std_logic;
     signal ev_can_error   : std_logic;
     signal ev_frame_error : std_logic;
@@ -359,8 +380,7 @@ begin
     -- a generation is only dispatched when its TX buffer is free
     nmt_gen_req <= (nmt_pending or mon_tx_req) and not ctl_tx_pending_i(1);
     sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
-    -- the PDO engine (issue 6) requests PDOs here
-    pdo_gen_req <= '0';
+    pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
 
     -- St3: CANopen uses base frames; an extended frame is dropped (T6) and counted
     rx_head_ok <= not ctl_rx_ide_i;
@@ -378,7 +398,10 @@ begin
         cls_nmt <= '0';
 
         if node_id_ok(rx_frame.id) then
-            if fc = FC_TPDO1_C or fc = FC_TPDO2_C or fc = FC_TPDO3_C or fc = FC_TPDO4_C then
+            -- slaves' TPDOs, and RTRs (or other masters' frames) on RPDO COB-IDs: the PDO
+            -- engine matches them against its channels
+            if fc = FC_TPDO1_C or fc = FC_TPDO2_C or fc = FC_TPDO3_C or fc = FC_TPDO4_C
+               or fc = FC_RPDO1_C or fc = FC_RPDO2_C or fc = FC_RPDO3_C or fc = FC_RPDO4_C then
                 cls_pdo <= '1';
             elsif fc = FC_SDO_TX_C or rx_frame.id = sdo_cob_resp then
                 cls_sdo <= '1';
@@ -391,13 +414,11 @@ begin
 
     end process classify_proc;
 
-    -- St5: received PDOs are acknowledged (the PDO engine of issue 6 will process them here)
-    pdo_done <= in_pdo_proc;
-
     -- St2, St8..St10: the selected source presents its frame
     frame_ready <= '1' when in_sync_gen = '1' else
                    '1' when in_nmt_gen = '1' and (nmt_pending = '1' or mon_tx_req = '1') else
                    '1' when in_sdo_gen = '1' and sdo_tx_req = '1' else
+                   '1' when in_pdo_gen = '1' and pdo_tx_req = '1' else
                    '0';
     encap_ok    <= in_encap;
 
@@ -436,6 +457,8 @@ begin
             status_ms    <= 0;
             sdo_tx_ack   <= '0';
             mon_tx_ack   <= '0';
+            pdo_tx_ack   <= '0';
+            window_us    <= (others => '0');
             init_done_q  <= '0';
             init_fail_q  <= '0';
         elsif rising_edge(clk_i) then
@@ -443,6 +466,7 @@ begin
             reinit_pulse <= '0';
             sdo_tx_ack   <= '0';
             mon_tx_ack   <= '0';
+            pdo_tx_ack   <= '0';
             init_done_q  <= ctl_init_done_i;
             init_fail_q  <= ctl_init_fail_i;
 
@@ -527,9 +551,14 @@ begin
 
                     when 4 =>
 
-                        tx_buf  <= txb_pdo_c;
-                        tx_txp  <= "01";
-                        tx_send <= '1';
+                        tx_frame.id   <= pdo_tx_id;
+                        tx_frame.rtr  <= pdo_tx_rtr;
+                        tx_frame.dlc  <= pdo_tx_dlc;
+                        tx_frame.data <= pdo_tx_data;
+                        tx_buf        <= txb_pdo_c;
+                        tx_txp        <= "01";
+                        tx_send       <= '1';
+                        pdo_tx_ack    <= '1';
 
                 end case;
 
@@ -562,6 +591,11 @@ begin
             if sync_late = '1' and sync_loaded = '1' and sync_fire = '0' then
                 sync_late <= '0';
                 sync_fire <= '1';
+            end if;
+            if sync_fire = '1' then
+                window_us <= (others => '0');
+            elsif tick_us = '1' and window_us /= x"FFFFFFFF" then
+                window_us <= window_us + 1;
             end if;
             if sync_fire = '1' then
                 sync_loaded <= '0';
@@ -661,8 +695,12 @@ begin
     ctl_tx_fire_o  <= (2 => sync_fire, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
-    enter_sdo <= in_sdo_proc and state_change;
-    enter_nmt <= in_nmt_proc and state_change;
+    enter_sdo   <= in_sdo_proc and state_change;
+    enter_pdo   <= in_pdo_proc and state_change;
+    window_open <= '1' when unsigned(sync_window_us) = 0 else
+                   '1' when window_us < unsigned(sync_window_us) else
+                   '0';
+    enter_nmt   <= in_nmt_proc and state_change;
 
     -- events and counters for the host block
     ev_node_any    <= (or ev_lost) or (or ev_toggle) or (or ev_bootup);
@@ -671,6 +709,7 @@ begin
                                or (in_parse = '1' and cls_pdo = '0' and cls_sdo = '0'
                              and cls_nmt = '0')
                                    or (sdo_rx_done = '1' and sdo_rx_unexp = '1')
+                                   or (pdo_rx_done = '1' and pdo_rx_unexp = '1')
                                    or (mon_rx_done = '1' and mon_rx_unexp = '1') else
                       '0';
     ev_frame_error <= cnt_unexpected or (mon_rx_done and mon_rx_malformed);
@@ -700,8 +739,8 @@ begin
             cls_pdo_i      => cls_pdo,
             cls_sdo_i      => cls_sdo,
             cls_nmt_i      => cls_nmt,
-            pdo_done_i     => pdo_done,
-            pdo_reply_i    => '0',
+            pdo_done_i     => pdo_rx_done,
+            pdo_reply_i    => pdo_rx_reply,
             sdo_done_i     => sdo_rx_done,
             sdo_reply_i    => sdo_rx_reply,
             nmt_done_i     => mon_rx_done,
@@ -827,6 +866,42 @@ begin
             rx_malformed_o      => mon_rx_malformed
         );
 
+    pdo_inst : entity canopen_master.canopen_pdo_engine
+        generic map (
+            N_TPDO => N_TPDO,
+            N_RPDO => N_RPDO
+        )
+        port map (
+            clk_i           => clk_i,
+            rst_n_i         => rst_n_i,
+            sync_i          => sync_fire,
+            sync_count_i    => std_logic_vector(sync_counter),
+            window_open_i   => window_open,
+            tick_us_i       => tick_us,
+            reg_addr_i      => pdo_reg_addr,
+            reg_we_i        => pdo_reg_we,
+            reg_wdata_i     => pdo_reg_wdata,
+            reg_rdata_o     => pdo_reg_rdata,
+            rx_valid_i      => enter_pdo,
+            rx_id_i         => rx_frame.id,
+            rx_rtr_i        => rx_frame.rtr,
+            rx_dlc_i        => rx_frame.dlc,
+            rx_data_i       => rx_frame.data,
+            rx_done_o       => pdo_rx_done,
+            rx_reply_o      => pdo_rx_reply,
+            rx_unexpected_o => pdo_rx_unexp,
+            tx_req_o        => pdo_tx_req,
+            tx_id_o         => pdo_tx_id,
+            tx_rtr_o        => pdo_tx_rtr,
+            tx_dlc_o        => pdo_tx_dlc,
+            tx_data_o       => pdo_tx_data,
+            tx_ack_i        => pdo_tx_ack,
+            ev_rx_o         => open,
+            ev_len_err_o    => open,
+            ev_missed_o     => open,
+            ev_late_o       => open
+        );
+
     -- ---------------------------------------------------------------------------------------------
     -- Host registers
     -- ---------------------------------------------------------------------------------------------
@@ -874,6 +949,10 @@ begin
             sdo_buf_addr_o           => sdo_buf_addr,
             sdo_buf_we_o             => sdo_buf_we,
             sdo_buf_wdata_o          => sdo_buf_wdata,
+            pdo_addr_o               => pdo_reg_addr,
+            pdo_we_o                 => pdo_reg_we,
+            pdo_wdata_o              => pdo_reg_wdata,
+            pdo_rdata_i              => pdo_reg_rdata,
             fsm_state_i              => fsm_state,
             init_done_i              => ctl_init_done_i,
             init_fail_i              => ctl_init_fail_i,

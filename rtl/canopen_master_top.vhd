@@ -28,6 +28,8 @@ entity canopen_master_top is
         CAN_BITRATE_BPS : positive                  := 1_000_000;  -- CAN bit rate [bit/s]
         MAX_NODES       : positive range 1 to 16    := 8;          -- monitored node slots
         EMCY_DEPTH      : positive range 2 to 64    := 8;          -- EMCY FIFO entries
+        N_TPDO          : positive range 1 to 32    := 8;          -- PDO channels sent
+        N_RPDO          : positive range 1 to 32    := 8;          -- PDO channels received
         RX_FIFO_DEPTH   : positive range 1 to 16    := 4;          -- received frames buffered
         WATCHDOG_US     : positive                  := 20_000;     -- longest wait per FSM state
         RESET_WAIT_US   : positive                  := 20          -- MCP2510 start-up wait [us]
@@ -123,6 +125,8 @@ begin
             CLK_FREQ_HZ => CLK_FREQ_HZ,
             MAX_NODES   => MAX_NODES,
             EMCY_DEPTH  => EMCY_DEPTH,
+            N_TPDO      => N_TPDO,
+            N_RPDO      => N_RPDO,
             WATCHDOG_US => WATCHDOG_US
         )
         port map (

@@ -7,6 +7,7 @@ canopen_pkg.vhd
 canopen_regs_pkg.vhd
 canopen_sdo_client.vhd
 canopen_autoconfig.vhd
+canopen_pdo_engine.vhd
 canopen_node_monitor.vhd
 mcp2510_spi_master.vhd
 mcp2510_instr.vhd

@@ -4,8 +4,9 @@ map (:mod:`tb.tblib.regmap`, from ``scripts/regmap.py``).
 
 Environment (all Python): the status and event inputs are driven by the tests; a model of the
 SDO client's buffer RAM (registered read data, like the real one) answers on the ``sdo_buf_*``
-port; a small SDO client model answers ``sdo_req_o`` with busy/done/abort. Checkers that run
-in every test:
+port; a model of the PDO engine's register port (registered read data) on the ``pdo_*`` port;
+a small SDO client model answers ``sdo_req_o`` with busy/done/abort. Checkers that run in every
+test:
 
 * Avalon: ``avs_readdatavalid_o`` is high exactly one cycle after each ``avs_read_i`` cycle;
 * strobes: every pulse output is high for one cycle at a time; each pulse is logged with the
@@ -128,7 +129,8 @@ class TB:
         start_clock(dut.clk_i, CLK_HZ)
         dut.rst_n_i.value = 0
         for name in ("avs_read_i", "avs_write_i", "avs_writedata_i", "avs_byteenable_i",
-                     "avs_address_i", "sdo_buf_rdata_i", *STATUS_INPUTS, *SLOT_INPUTS,
+                     "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", *STATUS_INPUTS,
+                     *SLOT_INPUTS,
                      *EVENTS.values(), *COUNT_INPUTS.values()):
             getattr(dut, name).value = 0
         self.host = CanopenMasterHost(dut, dut.clk_i, max_polls=200, poll_cycles=4)
@@ -136,6 +138,10 @@ class TB:
         #: bench-side model of the SDO client's buffer RAM, word address -> word
         self.ram: dict[int, int] = {}
         self.ram_extra_latency = 0  # fault injection for the can-fail test
+        #: bench-side model of the PDO engine's register port, window offset -> word
+        self.pdo_regs: dict[int, int] = {}
+        self.pdo_writes: list[tuple[int, int, int]] = []  # (cycle, offset, value)
+        self.pdo_extra_latency = 0  # fault injection for the can-fail test
         self.ram_reads: list[int] = []
         #: (cycle, strobe, value, {field: value}) per strobe cycle
         self.pulses: list[tuple[int, str, int, dict[str, int]]] = []
@@ -144,6 +150,7 @@ class TB:
         self.sdo_seen: list[dict] = []
         cocotb.start_soon(self._cycle_monitor())
         cocotb.start_soon(self._ram_model())
+        cocotb.start_soon(self._pdo_model())
         cocotb.start_soon(self._sdo_client())
 
     # ------------------------------------------------------------------ models and checkers
@@ -188,6 +195,25 @@ class TB:
             while len(pipe) > 1 + self.ram_extra_latency:
                 pipe.pop(0)
             dut.sdo_buf_rdata_i.value = pipe[0]
+
+    async def _pdo_model(self) -> None:
+        """PDO engine register port: write at the edge, read data registered (offset ->
+        word; an offset never written reads A5A5_0000h + offset, so reads are traceable)."""
+        dut = self.dut
+        pipe: list[int] = []
+        while True:
+            await RisingEdge(dut.clk_i)
+            addr = dut.pdo_addr_o.value
+            if not addr.is_resolvable:
+                continue
+            a = int(addr)
+            if dut.pdo_we_o.value == 1:
+                self.pdo_regs[a] = int(dut.pdo_wdata_o.value)
+                self.pdo_writes.append((self.cycle, a, self.pdo_regs[a]))
+            pipe.append(self.pdo_regs.get(a, 0xA5A50000 + a))
+            while len(pipe) > 1 + self.pdo_extra_latency:
+                pipe.pop(0)
+            dut.pdo_rdata_i.value = pipe[0]
 
     async def _sdo_client(self) -> None:
         """Answer each sdo_req_o with the next scripted outcome after a few busy cycles.
@@ -271,6 +297,7 @@ class TB:
 
     def mapped_addresses(self) -> set[int]:
         out = set(range(R.REG_SDO_BUF, R.REG_SDO_BUF + R.SDO_BUF_WORDS))
+        out |= set(range(R.REG_PDO_WIN, R.REG_PDO_WIN + R.PDO_WIN_WORDS))
         for name, info in R.REGISTERS.items():
             slots = range(self.max_nodes) if info.stride else [None]
             out |= {R.addr(name, s) for s in slots}
@@ -625,6 +652,58 @@ async def run_unlisted_addresses_read_zero(dut):
     assert {p: int(getattr(dut, p).value) for p in outputs} == outputs
     assert await host.irq_status() == 0 and await host.counters() == dict.fromkeys(
         (n.lower() for n in COUNTER_NAMES), 0)
+
+
+@cocotb.test(timeout_time=2, timeout_unit="ms")
+async def run_pdo_window_passthrough(dut):
+    """Purpose: the PDO_WIN window (C0h..FFh) reaches the PDO engine's register port.
+
+    Verifies: a write to each of the 64 words appears once on pdo_we_o with pdo_addr_o = the
+    word offset and pdo_wdata_o = the data (nothing else reaches the port: writes to registers,
+    to SDO_BUF and to the window with byte enables /= 1111 make no pdo_we_o); random-order
+    reads return the port's registered data with latency 1 (cycle monitor), interleaved with
+    SDO_BUF and register reads without mixing; each window register of the generated map lies
+    inside the window.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    host = tb.host
+    for name, info in R.PDO_REGISTERS.items():
+        assert R.REG_PDO_WIN <= info.addr < R.REG_PDO_WIN + R.PDO_WIN_WORDS, name
+    words = [random.getrandbits(32) for _ in range(R.PDO_WIN_WORDS)]
+    for off, v in enumerate(words):
+        await host.write(R.REG_PDO_WIN + off, v)
+    await tb.settle()
+    assert [(a, v) for _, a, v in tb.pdo_writes] == list(enumerate(words))
+    n = len(tb.pdo_writes)
+    await host.write(R.REG_PDO_WIN + 3, 0xDEADBEEF, byteenable=0b1110)
+    await host.write("SYNC_WINDOW_US", 0x1234)
+    await host.write(R.REG_SDO_BUF + 3, 0x5555AAAA)
+    await tb.settle()
+    assert len(tb.pdo_writes) == n and tb.pdo_regs[3] == words[3]
+    order = list(range(R.PDO_WIN_WORDS))
+    random.shuffle(order)
+    for off in order:
+        assert await host.read(R.REG_PDO_WIN + off) == words[off], f"offset {off}"
+        assert await host.read(R.REG_SDO_BUF + 3) == 0x5555AAAA
+        assert await host.read("ID") == R.ID_RESET
+    assert await host.read("PDO_SEL") == words[R.REG_PDO_SEL - R.REG_PDO_WIN]
+
+
+@cocotb.test(timeout_time=2, timeout_unit="ms", expect_fail=True)
+async def run_checker_catches_slow_pdo_port(dut):
+    """Purpose: prove the PDO_WIN read-back checks can fail.
+
+    Verifies: with the bench's engine-port model one cycle slower than the port promises,
+    reading back written words must fail.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    tb.pdo_extra_latency = 1
+    for off in range(4):
+        await tb.host.write(R.REG_PDO_WIN + off, 0x01010101 * (off + 1))
+    for off in range(4):
+        assert await tb.host.read(R.REG_PDO_WIN + off) == 0x01010101 * (off + 1), off
 
 
 @cocotb.test(timeout_time=2, timeout_unit="ms", expect_fail=True)

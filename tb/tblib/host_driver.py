@@ -147,8 +147,9 @@ class CanopenMasterHost:
     async def read_fields(self, reg: str, slot: int | None = None) -> dict[str, int]:
         """Every readable field of ``reg`` as ``{field: value}``."""
         word = await self.read(reg, slot)
+        info = R.REGISTERS[reg] if reg in R.REGISTERS else R.PDO_REGISTERS[reg]
         return {name: R.get_field(reg, name, word)
-                for name, f in R.REGISTERS[reg].fields.items() if f.access in ("RO", "RW", "W1C")}
+                for name, f in info.fields.items() if f.access in ("RO", "RW", "W1C")}
 
     # ------------------------------------------------------------------ NMT and SYNC
     async def nmt(self, cs: int, node: int = 0) -> None:
