@@ -385,23 +385,38 @@ begin
     rx_apply      <= '1' when rx_state = S_RX_APPLY and rx_class = RX_EC else
                      '0';
 
+    -- (an AND/OR reduction: written with an if per slot, GHDL 2.0 --synth takes hours from
+    -- MAX_NODES = 20 on)
     apply_flags_proc : process (all) is
+
+        variable auto_v  : std_logic; -- the slot of the frame has autostart
+        variable unsol_v : std_logic; -- the slot of the frame guards and has no RTR out
+
     begin
 
-        apply_reply       <= '0';
-        apply_unsolicited <= '0';
+        auto_v  := '0';
+        unsol_v := '0';
 
         for k in 0 to MAX_NODES - 1 loop
 
-            if rx_apply = '1' and rx_hit(k) = '1' then
-                if rx_state_byte = NMT_ST_BOOTUP_C then
-                    apply_reply <= cfg_autostart_i(k);
-                elsif cfg_mode_i(2 * k + 1 downto 2 * k) = mode_guarding_c then
-                    apply_unsolicited <= not rtr_out_q(k);
-                end if;
+            auto_v := auto_v or (rx_hit(k) and cfg_autostart_i(k));
+
+            if cfg_mode_i(2 * k + 1 downto 2 * k) = mode_guarding_c then
+                unsol_v := unsol_v or (rx_hit(k) and not rtr_out_q(k));
             end if;
 
         end loop;
+
+        if rx_apply = '1' and rx_state_byte = NMT_ST_BOOTUP_C then
+            apply_reply       <= auto_v;
+            apply_unsolicited <= '0';
+        elsif rx_apply = '1' then
+            apply_reply       <= '0';
+            apply_unsolicited <= unsol_v;
+        else
+            apply_reply       <= '0';
+            apply_unsolicited <= '0';
+        end if;
 
     end process apply_flags_proc;
 
@@ -517,14 +532,16 @@ begin
                     if rx_state_byte = NMT_ST_BOOTUP_C then
                         -- boot-up: record it, restart the toggle rule; heartbeat monitoring
                         -- restarts with the first heartbeat, guarding keeps polling
-                        heard_v         := true;
-                        bootup_q(k)     <= '1';
-                        ev_bootup_o(k)  <= '1';
-                        nmt_q(k)        <= rx_state_byte;
-                        last_q(k)       <= rx_time_q;
-                        alive_q(k)      <= '1';
-                        exp_v           := '0';
-                        out_v           := '0';
+                        heard_v        := true;
+                        bootup_q(k)    <= '1';
+                        ev_bootup_o(k) <= '1';
+                        nmt_q(k)       <= rx_state_byte;
+                        last_q(k)      <= rx_time_q;
+                        alive_q(k)     <= '1';
+                        exp_v          := '0';
+                        -- an RTR already taken for transmission stays outstanding: the booted
+                        -- node answers it (toggle 0), and ignoring that reply would leave the
+                        -- expectation one step behind
                         armed_v         := '0';
                         reload_v        := guard_v and run_v = '1';
                         pend_reset_q(k) <= '0';
