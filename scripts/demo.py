@@ -8,6 +8,7 @@ trace demo_bus.log (candump -L format: `canplayer`, `python -m can.player`) and 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,8 @@ OUT = ROOT / "build" / "demo"
 def main() -> int:
     for f in ("report.txt", "summary.json"):
         (OUT / f).unlink(missing_ok=True)
+    waves = ROOT / "build" / "sim" / "last_waves.txt"
+    waves.unlink(missing_ok=True)
     print("running the system simulation (master RTL + MCP2510 model + 4 drives) ...",
           flush=True)
     rc = subprocess.call([sys.executable, "-m", "pytest", "-q", "-p", "no:xdist",
@@ -28,8 +31,7 @@ def main() -> int:
         print()
         print(report.read_text())
         print(f"bus trace: {OUT / 'demo_bus.log'} (candump), {OUT / 'demo_bus.asc'}")
-        waves = ROOT / "build" / "sim" / "last_waves.txt"
-        if waves.exists():
+        if os.environ.get("WAVES", "0") not in ("", "0") and waves.exists():
             print(f"waveform: {waves.read_text().strip()}")
     return rc
 

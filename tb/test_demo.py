@@ -2,8 +2,10 @@
 
 Scenario: the master initialises its MCP2510; four CiA 402-style drives (nodes 1..4, crystals
 at -100/-50/+50/+100 ppm) boot; the host configures heartbeat supervision, sets each drive's
-heartbeat producer time by SDO download (1017h), starts the network (NMT start all), runs SYNC
-at 1 ms with a counter; drive 3 then drops off the bus and the master reports it. The test
+heartbeat producer time by SDO download (1017h), starts the network (NMT start all), sets up a
+PDO cycle (a set-point PDO to each drive and a feedback PDO from each, every SYNC) and runs SYNC
+every 2 ms with a counter (4 axes x two 6-byte PDOs need about 0.9 ms of the bus per cycle);
+drive 3 then drops off the bus and the master reports it. The test
 writes a timeline, a summary and the bus trace (candump .log and .asc) to ``build/demo/`` and
 asserts the outcome, so the demo is also a system smoke test in ``make test``.
 """
@@ -84,9 +86,21 @@ async def run_demo(dut):
     await tb.host.nmt(0x01, 0)
     await tb.wait_for(tb.all_operational, 2_000, 10, "operational")
     note("all drives operational (state read inside each drive)")
-    await tb.host.sync_config(period_us=1000, overflow=16)
-    note("host: SYNC 1000 us, counter overflow 16")
+    for ch, s in enumerate(tb.slaves):
+        # set-point to the drive's RPDO1 (controlword + target position), feedback from its
+        # TPDO1 (statusword + actual position), both every SYNC
+        await tb.host.tpdo_config(ch, 0x200 + s.node_id, 6, 1)
+        await tb.host.tpdo_write(ch, (0x000F).to_bytes(2, "little")
+                                 + (10_000 * s.node_id).to_bytes(4, "little"))
+        await tb.host.rpdo_config(ch, 0x180 + s.node_id, 6, 1)
+    note("host: PDOs configured: set-points 201h..204h and feedback 181h..184h every SYNC")
+    await tb.host.sync_config(period_us=2000, overflow=16)
+    note("host: SYNC 2000 us, counter overflow 16 (4 axes x 2 PDOs: ~43 % bus load)")
     await Timer(40, "ms")
+    feedback = [await tb.host.rpdo_read(ch) for ch in range(4)]
+    note("host: feedback PDO sequence numbers " + ", ".join(str(f["seq"]) for f in feedback)
+         + "; target positions inside the drives "
+         + ", ".join(str(s.read(0x607A, 0)) for s in tb.slaves))
     tb.slave(3).power_off()
     note("drive 3 loses power")
     t_off = sim_time_ps()
@@ -127,6 +141,7 @@ async def run_demo(dut):
                       "alive": st["alive"], "lost": st["lost"],
                       "state_in_drive": s.nmt_state.name})
     counters = await tb.host.counters()
+    pdo_counters = await tb.host.pdo_counters()
     summary = {
         "simulated_ms": round((t1 - t0) / PS_PER_MS, 3),
         "frames_by_type": dict(sorted(counts.items())),
@@ -138,8 +153,9 @@ async def run_demo(dut):
         if lost_at else None,
         "nodes": nodes,
         "master_counters": counters,
+        "pdo_counters": pdo_counters,
     }
-    lines = ["CANopen master demo: 4-axis drive network, 1 Mbit/s, SYNC 1 ms", "",
+    lines = ["CANopen master demo: 4-axis drive network, 1 Mbit/s, SYNC 2 ms", "",
              "Timeline"] + [timeline_line(t, e) for t, e in events] + ["", "Summary"]
     lines += ["  frames by type: " + ", ".join(f"{k}: {v}" for k, v in counts.most_common())]
     lines += [f"  bus load: {summary['bus_load_pct']} %   SYNC frames: {len(sync)}   "
@@ -151,6 +167,7 @@ async def run_demo(dut):
     lines += [f"  loss of node 3 detected {summary['loss_detected_ms_after_power_off']} ms "
               f"after it lost power (heartbeat 10 ms, consumer time 25 ms)"]
     lines += ["  master counters: " + ", ".join(f"{k}={v}" for k, v in counters.items() if v)]
+    lines += ["  PDO engine: " + ", ".join(f"{k}={v}" for k, v in pdo_counters.items() if v)]
     (OUT / "report.txt").write_text("\n".join(lines) + "\n")
     (OUT / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     tb.bus.write_trace(OUT / "demo_bus.log")
@@ -161,8 +178,11 @@ async def run_demo(dut):
     assert [n["lost"] for n in nodes] == [False, False, True, False], nodes
     for s in tb.slaves:
         assert s.read(0x1017, 0) == 10, f"node {s.node_id} 1017h not set by SDO"
+        assert s.read(0x607A, 0) == 10_000 * s.node_id, f"node {s.node_id} set-point"
+    assert all(f["seq"] >= 18 for f in feedback), feedback
+    assert counters["unexpected"] == 0, counters
     idle = [b - a for a, b in zip(sync[:20], sync[1:20])]
-    assert set(idle) == {1000 * PS_PER_US}, set(idle)
+    assert set(idle) == {2000 * PS_PER_US}, set(idle)
     tb.check_models_clean()
     await Timer(1, "ns")
 
