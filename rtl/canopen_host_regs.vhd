@@ -36,6 +36,7 @@ library ieee;
 
 library canopen_master;
     use canopen_master.canopen_regs_pkg.all;
+    use canopen_master.canopen_util_pkg.all;
 
 entity canopen_host_regs is
     generic (
@@ -227,32 +228,6 @@ architecture rtl of canopen_host_regs is
         return addr = std_logic_vector(to_unsigned(n, addr'length));
 
     end function addr_is;
-
-    -- a register word holding val in bits hi..lo (a width mismatch stops the simulation)
-
-    function at (val : std_logic_vector; hi : natural; lo : natural) return std_logic_vector is
-
-        variable w : std_logic_vector(31 downto 0);
-
-    begin
-
-        w               := (others => '0');
-        w(hi downto lo) := val;
-        return w;
-
-    end function at;
-
-    function at (val : std_logic; pos : natural) return std_logic_vector is
-
-        variable w : std_logic_vector(31 downto 0);
-
-    begin
-
-        w      := (others => '0');
-        w(pos) := val;
-        return w;
-
-    end function at;
 
     -- ---------------------------------------------------------------------------------------------
     -- Signals
@@ -499,19 +474,6 @@ begin
     -- Event counters: saturating, cleared by CTRL.CLR_COUNTERS
     -- ---------------------------------------------------------------------------------------------
     cnt_proc : process (clk_i, rst_n_i) is
-
-        -- one saturating step
-
-        function sat_inc (c : unsigned) return unsigned is
-        begin
-
-            if c = (c'range => '1') then
-                return c;
-            end if;
-
-            return c + 1;
-
-        end function sat_inc;
 
         variable inc_v : std_logic_vector(cnt_num_c - 1 downto 0);
         variable cnt_v : unsigned(CNT_BITS - 1 downto 0);

@@ -39,6 +39,7 @@ library ieee;
 
 library canopen_master;
     use canopen_master.canopen_regs_pkg.all;
+    use canopen_master.canopen_util_pkg.all;
 
 entity canopen_pdo_engine is
     generic (
@@ -193,45 +194,6 @@ architecture rtl of canopen_pdo_engine is
         return 0;
 
     end function bit_int;
-
-    -- saturating increment
-
-    function sat_inc (c : unsigned) return unsigned is
-    begin
-
-        if c = (c'range => '1') then
-            return c;
-        end if;
-
-        return c + 1;
-
-    end function sat_inc;
-
-    -- a register word holding val in bits hi..lo
-
-    function at (val : std_logic_vector; hi : natural; lo : natural) return std_logic_vector is
-
-        variable w : std_logic_vector(31 downto 0);
-
-    begin
-
-        w               := (others => '0');
-        w(hi downto lo) := val;
-        return w;
-
-    end function at;
-
-    function at (val : std_logic; pos : natural) return std_logic_vector is
-
-        variable w : std_logic_vector(31 downto 0);
-
-    begin
-
-        w      := (others => '0');
-        w(pos) := val;
-        return w;
-
-    end function at;
 
     -- ---------------------------------------------------------------------------------------------
     -- Types

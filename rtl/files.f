@@ -5,6 +5,7 @@ mcp2510_pkg.vhd
 canopen_master_pkg.vhd
 canopen_pkg.vhd
 canopen_regs_pkg.vhd
+canopen_util_pkg.vhd
 canopen_sdo_client.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
