@@ -43,6 +43,7 @@ from sim_models.canopen_slave import CanopenSlave, NmtState, make_message
 from sim_models.sim_time import PS_PER_US, Scheduler
 from tb.tblib import regmap as R
 from tb.tblib.clkrst import reset_active_low, start_clock
+from tb.tblib.frame_handover import hand_over_frame
 from tb.tblib.host_driver import PDO_COUNTER_NAMES, CanopenMasterHost
 from tb.tblib.model_clock import ModelClock, sim_time_ps
 from tb.tblib.runner import param, run_cocotb
@@ -338,22 +339,7 @@ class TB:
                 await self._rx_event.wait()
             msg = self.rx_queue.popleft()
             await FallingEdge(dut.clk_i)
-            dut.rx_id_i.value = msg.arbitration_id
-            dut.rx_rtr_i.value = int(msg.is_remote_frame)
-            dut.rx_dlc_i.value = msg.dlc
-            dut.rx_data_i.value = int.from_bytes(bytes(msg.data).ljust(8, b"\0"), "little")
-            dut.rx_valid_i.value = 1
-            await RisingEdge(dut.clk_i)
-            t0 = sim_time_ps()
-            dut.rx_valid_i.value = 0
-            await ReadOnly()
-            latency = 1
-            while dut.rx_done_o.value != 1:
-                assert latency < self.rx_bound, \
-                    f"rx_done_o not within {self.rx_bound} cycles of rx_valid_i"
-                await RisingEdge(dut.clk_i)
-                await ReadOnly()
-                latency += 1
+            t0, latency = await hand_over_frame(dut, msg, self.rx_bound)
             rec = RxRecord(t0, msg, latency, int(dut.rx_reply_o.value),
                            int(dut.rx_unexpected_o.value))
             if rec.reply:

@@ -38,6 +38,7 @@ from sim_models.canopen_slave import CanopenSlave, NmtState, make_message
 from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
 from tb.tblib.bench_nodes import ForwardingNode
 from tb.tblib.clkrst import reset_active_low, start_clock
+from tb.tblib.frame_handover import hand_over_frame
 from tb.tblib.model_clock import ModelClock, sim_time_ps
 from tb.tblib.runner import param, run_cocotb
 
@@ -242,20 +243,7 @@ class TB:
                     continue
             await FallingEdge(dut.clk_i)
             state_before = int(dut.state_o.value)
-            dut.rx_id_i.value = msg.arbitration_id
-            dut.rx_dlc_i.value = msg.dlc
-            dut.rx_data_i.value = int.from_bytes(bytes(msg.data).ljust(8, b"\0"), "little")
-            dut.rx_valid_i.value = 1
-            await RisingEdge(dut.clk_i)  # rx_valid_i sampled here
-            dut.rx_valid_i.value = 0
-            await ReadOnly()
-            latency = 1  # rx_done_o seen now is sampled at the next edge
-            while dut.rx_done_o.value != 1:
-                assert latency < self.max_rx_latency, \
-                    f"rx_done_o not within {self.max_rx_latency} cycles of rx_valid_i"
-                await RisingEdge(dut.clk_i)
-                await ReadOnly()
-                latency += 1
+            _, latency = await hand_over_frame(dut, msg, self.max_rx_latency, has_rtr=False)
             rec = RxRecord(sim_time_ps(), msg, latency, int(dut.rx_reply_o.value),
                            int(dut.rx_unexpected_o.value), state_before,
                            int(dut.state_o.value))
