@@ -22,6 +22,11 @@ CNF_16MHZ: dict[int, tuple[int, int, int]] = {
 }
 
 
+def std(can_id: int, data: bytes = b"") -> can.Message:
+    """A standard-ID data frame carrying ``data``."""
+    return can.Message(arbitration_id=can_id, is_extended_id=False, dlc=len(data), data=data)
+
+
 def new_chip(sched: Scheduler, **kwargs: object) -> Mcp2510:
     """A chip powered up now, with the scheduler run past the oscillator start-up time."""
     chip = Mcp2510(sched, **kwargs)  # type: ignore[arg-type]

@@ -13,11 +13,6 @@ from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
 
 
 @pytest.fixture
-def sched() -> Scheduler:
-    return Scheduler()
-
-
-@pytest.fixture
 def chip(sched: Scheduler) -> Mcp2510:
     return new_chip(sched)
 

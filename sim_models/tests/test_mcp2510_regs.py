@@ -11,11 +11,6 @@ from sim_models.sim_time import Scheduler
 
 
 @pytest.fixture
-def sched() -> Scheduler:
-    return Scheduler()
-
-
-@pytest.fixture
 def chip(sched: Scheduler) -> Mcp2510:
     return new_chip(sched)
 

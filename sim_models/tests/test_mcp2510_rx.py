@@ -8,7 +8,7 @@ import pytest
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.mcp2510 import Mcp2510
 from sim_models.mcp2510 import regs as R
-from sim_models.mcp2510.testing import configure, new_chip, read_rx, same_frame, write_id_group
+from sim_models.mcp2510.testing import configure, new_chip, read_rx, same_frame, std, write_id_group
 from sim_models.sim_time import PS_PER_MS, Scheduler
 
 BITRATE = 500_000
@@ -16,10 +16,6 @@ STD_ONLY = R.RXM_STD_ONLY << R.RXBNCTRL_RXM_SHIFT
 EXT_ONLY = R.RXM_EXT_ONLY << R.RXBNCTRL_RXM_SHIFT
 FILTERED = R.RXM_VALID_FILTERED << R.RXBNCTRL_RXM_SHIFT
 ANY = R.RXM_ANY << R.RXBNCTRL_RXM_SHIFT
-
-
-def std(can_id: int, data: bytes = b"") -> can.Message:
-    return can.Message(arbitration_id=can_id, is_extended_id=False, dlc=len(data), data=data)
 
 
 def ext(can_id: int, data: bytes = b"") -> can.Message:

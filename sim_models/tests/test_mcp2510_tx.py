@@ -8,19 +8,10 @@ import pytest
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.mcp2510 import Mcp2510, Mcp2510Error
 from sim_models.mcp2510 import regs as R
-from sim_models.mcp2510.testing import configure, load_tx, new_chip, rts, same_frame, set_mode
+from sim_models.mcp2510.testing import configure, load_tx, new_chip, rts, same_frame, set_mode, std
 from sim_models.sim_time import PS_PER_MS, Scheduler
 
 BITRATE = 500_000
-
-
-def std(can_id: int, data: bytes = b"") -> can.Message:
-    return can.Message(arbitration_id=can_id, is_extended_id=False, dlc=len(data), data=data)
-
-
-@pytest.fixture
-def sched() -> Scheduler:
-    return Scheduler()
 
 
 @pytest.fixture
