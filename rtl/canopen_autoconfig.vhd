@@ -169,6 +169,9 @@ begin
             n_ok         <= (others => '0');
             n_fail       <= (others => '0');
             first_set    <= '0';
+            fail_node_o  <= (others => '0');
+            fail_entry_o <= (others => '0');
+            fail_abort_o <= (others => '0');
             ending       <= '0';
             done_o       <= '0';
             ev_fail_o    <= '0';
@@ -187,15 +190,18 @@ begin
                 when S_IDLE =>
 
                     if start_i = '1' then
-                        idx       <= 0;
-                        rd_addr   <= 0;
-                        have_node <= '0';
-                        node_fail <= '0';
-                        n_ok      <= (others => '0');
-                        n_fail    <= (others => '0');
-                        first_set <= '0';
-                        ending    <= '0';
-                        state     <= S_FETCH;
+                        idx          <= 0;
+                        rd_addr      <= 0;
+                        have_node    <= '0';
+                        node_fail    <= '0';
+                        n_ok         <= (others => '0');
+                        n_fail       <= (others => '0');
+                        first_set    <= '0';
+                        fail_node_o  <= (others => '0');
+                        fail_entry_o <= (others => '0');
+                        fail_abort_o <= (others => '0');
+                        ending       <= '0';
+                        state        <= S_FETCH;
                     end if;
 
                 when S_FETCH =>

@@ -99,6 +99,16 @@ entity canopen_host_regs is
         -- vsg_off port_012: default 0 keeps instances without the PDO engine elaborating
         pdo_rdata_i : in    std_logic_vector(31 downto 0) := (others => '0'); -- read (+1)
         -- vsg_on port_012
+        -- automatic configuration (canopen_autoconfig): control and table write port
+        acfg_start_o       : out   std_logic;                     -- pulse: ACFG_CTRL.START
+        acfg_start_nodes_o : out   std_logic;                     -- ACFG_CTRL.START_NODES
+        acfg_tbl_we_o      : out   std_logic;                     -- pulse: ACFG_VALUE written
+        acfg_tbl_addr_o    : out   std_logic_vector(7 downto 0);  -- entry number
+        acfg_tbl_node_o    : out   std_logic_vector(6 downto 0);  -- entry node-ID
+        acfg_tbl_index_o   : out   std_logic_vector(15 downto 0); -- entry index
+        acfg_tbl_sub_o     : out   std_logic_vector(7 downto 0);  -- entry sub-index
+        acfg_tbl_size_o    : out   std_logic_vector(2 downto 0);  -- entry size 1..4
+        acfg_tbl_value_o   : out   std_logic_vector(31 downto 0); -- entry value
         -- master and CAN controller status
         fsm_state_i   : in    std_logic_vector(3 downto 0);  -- master FSM state
         init_done_i   : in    std_logic;                     -- CAN controller running
@@ -132,6 +142,13 @@ entity canopen_host_regs is
         sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code
         sdo_abort_sent_i : in    std_logic;                     -- 1: the client aborted
         sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred
+        -- automatic configuration status
+        acfg_busy_i       : in    std_logic;                     -- list running
+        acfg_nodes_ok_i   : in    std_logic_vector(7 downto 0);  -- nodes configured
+        acfg_nodes_fail_i : in    std_logic_vector(7 downto 0);  -- nodes failed
+        acfg_fail_node_i  : in    std_logic_vector(6 downto 0);  -- first failure: node
+        acfg_fail_entry_i : in    std_logic_vector(7 downto 0);  -- first failure: entry
+        acfg_fail_abort_i : in    std_logic_vector(31 downto 0); -- first failure: abort code
         -- interrupt events (one-cycle strobes)
         ev_node_i        : in    std_logic; -- node event
         ev_emcy_i        : in    std_logic; -- EMCY received
@@ -140,6 +157,7 @@ entity canopen_host_regs is
         ev_sync_i        : in    std_logic; -- SYNC sent
         ev_frame_error_i : in    std_logic; -- unexpected or malformed frame
         ev_init_i        : in    std_logic; -- initialisation done or failed
+        ev_acfg_done_i   : in    std_logic; -- configuration list finished
         -- counter increments (one-cycle strobes)
         cnt_rx_frame_i    : in    std_logic;                    -- frame received
         cnt_tx_frame_i    : in    std_logic;                    -- frame sent
@@ -179,7 +197,7 @@ architecture rtl of canopen_host_regs is
 
     -- counters in address order, CNT_RX_FRAMES .. CNT_EMCY
     constant cnt_num_c  : positive := REG_CNT_EMCY_C - REG_CNT_RX_FRAMES_C + 1;
-    constant irq_bits_c : positive := IRQ_STATUS_INIT_C + 1;
+    constant irq_bits_c : positive := IRQ_STATUS_CONFIG_C + 1;
     -- SDO_BUF window: low address bits select the word, high bits the window
     constant buf_bits_c : natural := clog2(REG_SDO_BUF_WORDS_C);
     constant buf_win_c  : natural := REG_SDO_BUF_C / REG_SDO_BUF_WORDS_C;
@@ -271,10 +289,18 @@ architecture rtl of canopen_host_regs is
     signal sdo_timeout    : std_logic_vector(15 downto 0);
     signal sdo_cob_req    : std_logic_vector(10 downto 0);
     signal sdo_cob_resp   : std_logic_vector(10 downto 0);
+    signal acfg_nodes     : std_logic;
+    signal acfg_entry     : unsigned(7 downto 0);
+    signal acfg_node      : std_logic_vector(6 downto 0);
+    signal acfg_size      : std_logic_vector(2 downto 0);
+    signal acfg_index     : std_logic_vector(15 downto 0);
+    signal acfg_sub       : std_logic_vector(7 downto 0);
 
     -- interrupt flags (W1C) and the sticky SDO done flag
     signal irq_status : std_logic_vector(irq_bits_c - 1 downto 0);
     signal sdo_done   : std_logic;
+    -- sticky: the configuration list finished, cleared by the next ACFG_CTRL.START
+    signal acfg_done : std_logic;
 
     -- event counters, counter i (word REG_CNT_RX_FRAMES_C + i) in bits
     -- CNT_BITS * (i + 1) - 1 .. CNT_BITS * i
@@ -340,6 +366,15 @@ begin
             sdo_cob_req    <= (others => '0');
             sdo_cob_resp   <= (others => '0');
             sdo_done       <= '0';
+            acfg_nodes     <= '0';
+            acfg_entry     <= (others => '0');
+            acfg_node      <= (others => '0');
+            acfg_size      <= (others => '0');
+            acfg_index     <= (others => '0');
+            acfg_sub       <= (others => '0');
+            acfg_done      <= '0';
+            acfg_start_o   <= '0';
+            acfg_tbl_we_o  <= '0';
             reinit_o       <= '0';
             nmt_req_o      <= '0';
             node_clear_o   <= (others => '0');
@@ -348,12 +383,14 @@ begin
             sdo_req_o      <= '0';
         elsif rising_edge(clk_i) then
             -- strobes
-            reinit_o     <= '0';
-            nmt_req_o    <= '0';
-            node_clear_o <= (others => '0');
-            emcy_clear_o <= '0';
-            emcy_pop_o   <= '0';
-            sdo_req_o    <= '0';
+            reinit_o      <= '0';
+            nmt_req_o     <= '0';
+            node_clear_o  <= (others => '0');
+            emcy_clear_o  <= '0';
+            emcy_pop_o    <= '0';
+            sdo_req_o     <= '0';
+            acfg_start_o  <= '0';
+            acfg_tbl_we_o <= '0';
 
             -- interrupt flags: clear by writing 1, an event in the same cycle wins
             ev_v                           := (others => '0');
@@ -364,6 +401,7 @@ begin
             ev_v(IRQ_STATUS_SYNC_C)        := ev_sync_i;
             ev_v(IRQ_STATUS_FRAME_ERROR_C) := ev_frame_error_i;
             ev_v(IRQ_STATUS_INIT_C)        := ev_init_i;
+            ev_v(IRQ_STATUS_CONFIG_C)      := ev_acfg_done_i;
             if avs_write_i = '1' and addr_is(avs_address_i, REG_IRQ_STATUS_C) then
                 irq_status <= (irq_status and not wr_ones(irq_status'range)) or ev_v;
             else
@@ -373,6 +411,9 @@ begin
             -- SDO done: set by the done event, cleared by the next start
             if ev_sdo_done_i = '1' then
                 sdo_done <= '1';
+            end if;
+            if ev_acfg_done_i = '1' then
+                acfg_done <= '1';
             end if;
 
             if avs_write_i = '1' then
@@ -420,6 +461,28 @@ begin
                     sdo_cob_req  <= wr_merge(SDO_COB_REQUEST_HI_C downto SDO_COB_REQUEST_LO_C);
                     sdo_cob_resp <= wr_merge(SDO_COB_RESPONSE_HI_C downto SDO_COB_RESPONSE_LO_C);
                 end if;
+                if addr_is(avs_address_i, REG_ACFG_CTRL_C) then
+                    acfg_nodes   <= wr_merge(ACFG_CTRL_START_NODES_C);
+                    acfg_start_o <= wr_ones(ACFG_CTRL_START_C);
+                    if wr_ones(ACFG_CTRL_START_C) = '1' then
+                        acfg_done <= '0';
+                    end if;
+                end if;
+                if addr_is(avs_address_i, REG_ACFG_ENTRY_C) then
+                    acfg_entry <= unsigned(wr_merge(ACFG_ENTRY_ENTRY_HI_C downto
+                                                    ACFG_ENTRY_ENTRY_LO_C));
+                    acfg_node  <= wr_merge(ACFG_ENTRY_NODE_HI_C downto ACFG_ENTRY_NODE_LO_C);
+                    acfg_size  <= wr_merge(ACFG_ENTRY_SIZE_HI_C downto ACFG_ENTRY_SIZE_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_ACFG_OBJ_C) then
+                    acfg_index <= wr_merge(ACFG_OBJ_INDEX_HI_C downto ACFG_OBJ_INDEX_LO_C);
+                    acfg_sub   <= wr_merge(ACFG_OBJ_SUBINDEX_HI_C downto ACFG_OBJ_SUBINDEX_LO_C);
+                end if;
+                -- ACFG_VALUE: store the entry now, then point at the next one
+                if addr_is(avs_address_i, REG_ACFG_VALUE_C) then
+                    acfg_tbl_we_o <= '1';
+                    acfg_entry    <= acfg_entry + 1;
+                end if;
 
                 -- node slots (static indices)
                 for k in 0 to MAX_NODES - 1 loop
@@ -460,6 +523,10 @@ begin
             if avs_write_i = '1' and addr_is(avs_address_i, REG_NMT_CMD_C) then
                 nmt_cs_o   <= avs_writedata_i(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
                 nmt_node_o <= avs_writedata_i(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
+            end if;
+            if avs_write_i = '1' and addr_is(avs_address_i, REG_ACFG_VALUE_C) then
+                acfg_tbl_addr_o  <= std_logic_vector(acfg_entry);
+                acfg_tbl_value_o <= avs_writedata_i;
             end if;
             if avs_write_i = '1' and addr_is(avs_address_i, REG_SDO_CMD_C) then
                 sdo_node_o   <= avs_writedata_i(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
@@ -606,6 +673,23 @@ begin
             at(sdo_cob_req, SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
             or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
 
+        put(REG_ACFG_CTRL_C, at(acfg_nodes, ACFG_CTRL_START_NODES_C));
+        put(REG_ACFG_STATUS_C,
+            at(acfg_busy_i, ACFG_STATUS_BUSY_C) or at(acfg_done, ACFG_STATUS_DONE_C)
+            or at(acfg_nodes_ok_i, ACFG_STATUS_NODES_OK_HI_C, ACFG_STATUS_NODES_OK_LO_C)
+            or at(acfg_nodes_fail_i, ACFG_STATUS_NODES_FAIL_HI_C, ACFG_STATUS_NODES_FAIL_LO_C));
+        put(REG_ACFG_FAIL_C,
+            at(acfg_fail_node_i, ACFG_FAIL_NODE_HI_C, ACFG_FAIL_NODE_LO_C)
+            or at(acfg_fail_entry_i, ACFG_FAIL_ENTRY_HI_C, ACFG_FAIL_ENTRY_LO_C));
+        put(REG_ACFG_ABORT_C, acfg_fail_abort_i);
+        put(REG_ACFG_ENTRY_C,
+            at(std_logic_vector(acfg_entry), ACFG_ENTRY_ENTRY_HI_C, ACFG_ENTRY_ENTRY_LO_C)
+            or at(acfg_node, ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C)
+            or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C));
+        put(REG_ACFG_OBJ_C,
+            at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
+            or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
+
         rd_mux <= v;
 
     end process read_mux_proc;
@@ -686,5 +770,10 @@ begin
     sdo_timeout_ms_o         <= sdo_timeout;
     sdo_cob_req_o            <= sdo_cob_req;
     sdo_cob_resp_o           <= sdo_cob_resp;
+    acfg_start_nodes_o       <= acfg_nodes;
+    acfg_tbl_node_o          <= acfg_node;
+    acfg_tbl_index_o         <= acfg_index;
+    acfg_tbl_sub_o           <= acfg_sub;
+    acfg_tbl_size_o          <= acfg_size;
 
 end architecture rtl;

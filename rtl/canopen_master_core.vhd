@@ -11,7 +11,8 @@
 --   * canopen_master_fsm: the scheduler (St0..St13, docs/fsm.md). Every condition it sees is
 --     computed here; every action it asks for (its Moore state outputs) is carried out here.
 --   * canopen_sdo_client (St6/St9), canopen_node_monitor (St7/St10: heartbeat, guarding,
---     boot-up, EMCY).
+--     boot-up, EMCY), canopen_autoconfig (the SDO configuration list; owns the SDO client while
+--     it runs, its NMT starts wait in their own register and go out in St8).
 --   * Datapath (this file): timebase (us/ms), SYNC producer, Receive_Data register and COB-ID
 --     classifier (St3/St4), generation-source selection and Transmit_Data with the TX buffer
 --     plan (St8..St11), the controller request (St12), error latch (St13), state watchdog
@@ -34,15 +35,16 @@ library canopen_master;
 
 entity canopen_master_core is
     generic (
-        CLK_FREQ_HZ       : positive               := 50_000_000; -- clk_i frequency [Hz]
-        MAX_NODES         : positive range 1 to 16 := 8;          -- monitored node slots
-        EMCY_DEPTH        : positive range 2 to 64 := 8;          -- EMCY FIFO entries
-        SDO_BUF_BYTES     : positive               := 256;        -- SDO transfer buffer [bytes]
-        N_TPDO            : positive range 1 to 32 := 8;          -- PDO channels sent
-        N_RPDO            : positive range 1 to 32 := 8;          -- PDO channels received
-        WATCHDOG_US       : positive               := 20_000;     -- longest wait in one state
-        REINIT_BACKOFF_MS : positive               := 100;        -- between init attempts
-        STATUS_POLL_MS    : positive               := 10          -- TEC/REC/EFLG refresh period
+        CLK_FREQ_HZ       : positive                := 50_000_000; -- clk_i frequency [Hz]
+        MAX_NODES         : positive range 1 to 16  := 8;          -- monitored node slots
+        EMCY_DEPTH        : positive range 2 to 64  := 8;          -- EMCY FIFO entries
+        SDO_BUF_BYTES     : positive                := 256;        -- SDO transfer buffer [bytes]
+        N_TPDO            : positive range 1 to 32  := 8;          -- PDO channels sent
+        N_RPDO            : positive range 1 to 32  := 8;          -- PDO channels received
+        CFG_DEPTH         : positive range 2 to 256 := 64;         -- configuration list entries
+        WATCHDOG_US       : positive                := 20_000;     -- longest wait in one state
+        REINIT_BACKOFF_MS : positive                := 100;        -- between init attempts
+        STATUS_POLL_MS    : positive                := 10          -- TEC/REC/EFLG refresh period
     );
     port (
         -- clock and reset
@@ -216,7 +218,7 @@ architecture rtl of canopen_master_core is
     signal tx_send      : std_logic;
     signal tx_requested : std_logic;
     -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
-    signal gen_src : natural range 0 to 4;
+    signal gen_src : natural range 0 to 5;
     -- host NMT command waiting
     signal nmt_pending  : std_logic;
     signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
@@ -269,6 +271,49 @@ architecture rtl of canopen_master_core is
     signal sdo_rx_done    : std_logic;
     signal sdo_rx_reply   : std_logic;
     signal sdo_rx_unexp   : std_logic;
+
+    -- SDO client request and buffer port: the host's, or the configuration list's while it runs
+    signal cli_req       : std_logic;
+    signal cli_upload    : std_logic;
+    signal cli_node      : std_logic_vector(6 downto 0);
+    signal cli_index     : std_logic_vector(15 downto 0);
+    signal cli_subindex  : std_logic_vector(7 downto 0);
+    signal cli_size      : std_logic_vector(10 downto 0);
+    signal cli_buf_addr  : std_logic_vector(7 downto 0);
+    signal cli_buf_we    : std_logic;
+    signal cli_buf_wdata : std_logic_vector(31 downto 0);
+
+    -- automatic configuration (canopen_autoconfig)
+    signal acfg_start       : std_logic;
+    signal acfg_start_nodes : std_logic;
+    signal acfg_start_pend  : std_logic;
+    signal acfg_run         : std_logic;
+    signal acfg_busy        : std_logic;
+    signal acfg_done        : std_logic;
+    signal acfg_tbl_we      : std_logic;
+    signal acfg_tbl_addr    : std_logic_vector(7 downto 0);
+    signal acfg_tbl_node    : std_logic_vector(6 downto 0);
+    signal acfg_tbl_index   : std_logic_vector(15 downto 0);
+    signal acfg_tbl_sub     : std_logic_vector(7 downto 0);
+    signal acfg_tbl_size    : std_logic_vector(2 downto 0);
+    signal acfg_tbl_value   : std_logic_vector(31 downto 0);
+    signal acfg_nodes_ok    : std_logic_vector(7 downto 0);
+    signal acfg_nodes_fail  : std_logic_vector(7 downto 0);
+    signal acfg_fail_node   : std_logic_vector(6 downto 0);
+    signal acfg_fail_entry  : std_logic_vector(7 downto 0);
+    signal acfg_fail_abort  : std_logic_vector(31 downto 0);
+    signal acfg_sdo_req     : std_logic;
+    signal acfg_sdo_node    : std_logic_vector(6 downto 0);
+    signal acfg_sdo_index   : std_logic_vector(15 downto 0);
+    signal acfg_sdo_sub     : std_logic_vector(7 downto 0);
+    signal acfg_sdo_size    : std_logic_vector(10 downto 0);
+    signal acfg_buf_we      : std_logic;
+    signal acfg_buf_wdata   : std_logic_vector(31 downto 0);
+    signal acfg_nmt_req     : std_logic;
+    signal acfg_nmt_node    : std_logic_vector(6 downto 0);
+    -- its NMT start waits here (apart from the host's NMT command, so neither is lost)
+    signal acfg_nmt_pending : std_logic;
+    signal acfg_nmt_cmd     : std_logic_vector(6 downto 0);
 
     signal st_nmt           : std_logic_vector(7 * MAX_NODES - 1 downto 0);
     signal st_alive         : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -378,7 +423,7 @@ begin
     sync_due    <= sync_en and (or sync_period_us) and not sync_loaded
                    and not ctl_tx_pending_i(2);
     -- a generation is only dispatched when its TX buffer is free
-    nmt_gen_req <= (nmt_pending or mon_tx_req) and not ctl_tx_pending_i(1);
+    nmt_gen_req <= (nmt_pending or acfg_nmt_pending or mon_tx_req) and not ctl_tx_pending_i(1);
     sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
     pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
 
@@ -416,7 +461,8 @@ begin
 
     -- St2, St8..St10: the selected source presents its frame
     frame_ready <= '1' when in_sync_gen = '1' else
-                   '1' when in_nmt_gen = '1' and (nmt_pending = '1' or mon_tx_req = '1') else
+                   '1' when in_nmt_gen = '1' and (nmt_pending = '1' or acfg_nmt_pending = '1'
+                                                     or mon_tx_req = '1') else
                    '1' when in_sdo_gen = '1' and sdo_tx_req = '1' else
                    '1' when in_pdo_gen = '1' and pdo_tx_req = '1' else
                    '0';
@@ -437,30 +483,31 @@ begin
     begin
 
         if rst_n_i = '0' then
-            tx_requested <= '0';
-            gen_src      <= 0;
-            nmt_pending  <= '0';
-            sync_timer   <= (others => '0');
-            sync_loaded  <= '0';
-            sync_late    <= '0';
-            sync_counter <= to_unsigned(1, 8);
-            sync_count   <= (others => '0');
-            sync_fire    <= '0';
-            err_can      <= '0';
-            err_busoff   <= '0';
-            err_reinit   <= '0';
-            err_node     <= '0';
-            wd_us        <= 0;
-            backoff_us   <= 0;
-            reinit_pulse <= '0';
-            reinit_wait  <= '0';
-            status_ms    <= 0;
-            sdo_tx_ack   <= '0';
-            mon_tx_ack   <= '0';
-            pdo_tx_ack   <= '0';
-            window_us    <= (others => '0');
-            init_done_q  <= '0';
-            init_fail_q  <= '0';
+            tx_requested     <= '0';
+            gen_src          <= 0;
+            nmt_pending      <= '0';
+            acfg_nmt_pending <= '0';
+            sync_timer       <= (others => '0');
+            sync_loaded      <= '0';
+            sync_late        <= '0';
+            sync_counter     <= to_unsigned(1, 8);
+            sync_count       <= (others => '0');
+            sync_fire        <= '0';
+            err_can          <= '0';
+            err_busoff       <= '0';
+            err_reinit       <= '0';
+            err_node         <= '0';
+            wd_us            <= 0;
+            backoff_us       <= 0;
+            reinit_pulse     <= '0';
+            reinit_wait      <= '0';
+            status_ms        <= 0;
+            sdo_tx_ack       <= '0';
+            mon_tx_ack       <= '0';
+            pdo_tx_ack       <= '0';
+            window_us        <= (others => '0');
+            init_done_q      <= '0';
+            init_fail_q      <= '0';
         elsif rising_edge(clk_i) then
             sync_fire    <= '0';
             reinit_pulse <= '0';
@@ -485,11 +532,19 @@ begin
                 nmt_cmd_node <= nmt_node;
             end if;
 
+            -- NMT start of a configured node (canopen_autoconfig) -----------------------------
+            if acfg_nmt_req = '1' then
+                acfg_nmt_pending <= '1';
+                acfg_nmt_cmd     <= acfg_nmt_node;
+            end if;
+
             -- St2, St8..St10: remember the generation source ---------------------------------
             if in_sync_gen = '1' then
                 gen_src <= 0;
             elsif in_nmt_gen = '1' and nmt_pending = '1' then
                 gen_src <= 1;
+            elsif in_nmt_gen = '1' and acfg_nmt_pending = '1' then
+                gen_src <= 5;
             elsif in_nmt_gen = '1' then
                 gen_src <= 2;
             elsif in_sdo_gen = '1' then
@@ -527,6 +582,17 @@ begin
                         tx_txp                     <= "10";
                         tx_send                    <= '1';
                         nmt_pending                <= '0';
+
+                    when 5 =>
+
+                        -- NMT start of a node the configuration list configured
+                        tx_frame.id                <= COB_NMT_C;
+                        tx_frame.dlc               <= x"2";
+                        tx_frame.data(15 downto 0) <= '0' & acfg_nmt_cmd & NMT_CS_START_C;
+                        tx_buf                     <= txb_cmd_c;
+                        tx_txp                     <= "10";
+                        tx_send                    <= '1';
+                        acfg_nmt_pending           <= '0';
 
                     when 2 =>
 
@@ -781,12 +847,12 @@ begin
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
             tick_ms_i       => tick_ms,
-            req_valid_i     => sdo_req,
-            req_upload_i    => sdo_upload,
-            req_node_i      => sdo_node,
-            req_index_i     => sdo_index,
-            req_subindex_i  => sdo_subindex,
-            req_size_i      => sdo_size,
+            req_valid_i     => cli_req,
+            req_upload_i    => cli_upload,
+            req_node_i      => cli_node,
+            req_index_i     => cli_index,
+            req_subindex_i  => cli_subindex,
+            req_size_i      => cli_size,
             cob_req_i       => sdo_cob_req,
             cob_resp_i      => sdo_cob_resp,
             timeout_ms_i    => sdo_timeout_ms,
@@ -796,9 +862,9 @@ begin
             abort_code_o    => sdo_abort_code,
             abort_sent_o    => sdo_abort_sent,
             size_o          => sdo_xfer_size,
-            buf_addr_i      => sdo_buf_addr,
-            buf_we_i        => sdo_buf_we,
-            buf_wdata_i     => sdo_buf_wdata,
+            buf_addr_i      => cli_buf_addr,
+            buf_we_i        => cli_buf_we,
+            buf_wdata_i     => cli_buf_wdata,
             buf_rdata_o     => sdo_buf_rdata,
             tx_req_o        => sdo_tx_req,
             tx_id_o         => sdo_tx_id,
@@ -903,6 +969,89 @@ begin
         );
 
     -- ---------------------------------------------------------------------------------------------
+    -- Automatic configuration: the SDO list run before NMT start (owns the SDO client while busy)
+    -- ---------------------------------------------------------------------------------------------
+
+    -- ACFG_CTRL.START waits until a host transfer already running has ended; from then until the
+    -- list is finished (acfg_run) the client's request and buffer port belong to the list, host
+    -- requests are ignored (SDO_CMD.BUSY reads 1) and its done strobes do not reach the host.
+    -- A START while the list runs is ignored.
+    acfg_start_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            acfg_start_pend <= '0';
+        elsif rising_edge(clk_i) then
+            if acfg_start = '1' and acfg_busy = '0' then
+                acfg_start_pend <= '1';
+            elsif sdo_busy = '0' and acfg_busy = '0' then
+                acfg_start_pend <= '0';
+            end if;
+        end if;
+
+    end process acfg_start_proc;
+
+    acfg_run <= acfg_busy or acfg_start_pend;
+
+    cli_req       <= acfg_sdo_req when acfg_run = '1' else
+                     sdo_req;
+    cli_upload    <= '0' when acfg_run = '1' else
+                     sdo_upload;
+    cli_node      <= acfg_sdo_node when acfg_run = '1' else
+                     sdo_node;
+    cli_index     <= acfg_sdo_index when acfg_run = '1' else
+                     sdo_index;
+    cli_subindex  <= acfg_sdo_sub when acfg_run = '1' else
+                     sdo_subindex;
+    cli_size      <= acfg_sdo_size when acfg_run = '1' else
+                     sdo_size;
+    cli_buf_addr  <= (others => '0') when acfg_run = '1' else
+                     sdo_buf_addr;
+    cli_buf_we    <= acfg_buf_we when acfg_run = '1' else
+                     sdo_buf_we;
+    cli_buf_wdata <= acfg_buf_wdata when acfg_run = '1' else
+                     sdo_buf_wdata;
+
+    acfg_inst : entity canopen_master.canopen_autoconfig
+        generic map (
+            CFG_DEPTH => CFG_DEPTH
+        )
+        port map (
+            clk_i           => clk_i,
+            rst_n_i         => rst_n_i,
+            tbl_we_i        => acfg_tbl_we,
+            tbl_addr_i      => acfg_tbl_addr,
+            tbl_node_i      => acfg_tbl_node,
+            tbl_index_i     => acfg_tbl_index,
+            tbl_sub_i       => acfg_tbl_sub,
+            tbl_size_i      => acfg_tbl_size,
+            tbl_value_i     => acfg_tbl_value,
+            start_i         => acfg_start_pend and not sdo_busy and not acfg_busy,
+            start_nodes_i   => acfg_start_nodes,
+            busy_o          => acfg_busy,
+            done_o          => acfg_done,
+            nodes_ok_o      => acfg_nodes_ok,
+            nodes_fail_o    => acfg_nodes_fail,
+            fail_node_o     => acfg_fail_node,
+            fail_entry_o    => acfg_fail_entry,
+            fail_abort_o    => acfg_fail_abort,
+            ev_fail_o       => open,
+            sdo_req_o       => acfg_sdo_req,
+            sdo_node_o      => acfg_sdo_node,
+            sdo_index_o     => acfg_sdo_index,
+            sdo_sub_o       => acfg_sdo_sub,
+            sdo_size_o      => acfg_sdo_size,
+            sdo_buf_we_o    => acfg_buf_we,
+            sdo_buf_wdata_o => acfg_buf_wdata,
+            sdo_done_i      => sdo_done,
+            sdo_error_i     => sdo_error,
+            sdo_abort_i     => sdo_abort_code,
+            nmt_req_o       => acfg_nmt_req,
+            nmt_node_o      => acfg_nmt_node,
+            nmt_ready_i     => not acfg_nmt_pending
+        );
+
+    -- ---------------------------------------------------------------------------------------------
     -- Host registers
     -- ---------------------------------------------------------------------------------------------
     regs_inst : entity canopen_master.canopen_host_regs
@@ -953,6 +1102,15 @@ begin
             pdo_we_o                 => pdo_reg_we,
             pdo_wdata_o              => pdo_reg_wdata,
             pdo_rdata_i              => pdo_reg_rdata,
+            acfg_start_o             => acfg_start,
+            acfg_start_nodes_o       => acfg_start_nodes,
+            acfg_tbl_we_o            => acfg_tbl_we,
+            acfg_tbl_addr_o          => acfg_tbl_addr,
+            acfg_tbl_node_o          => acfg_tbl_node,
+            acfg_tbl_index_o         => acfg_tbl_index,
+            acfg_tbl_sub_o           => acfg_tbl_sub,
+            acfg_tbl_size_o          => acfg_tbl_size,
+            acfg_tbl_value_o         => acfg_tbl_value,
             fsm_state_i              => fsm_state,
             init_done_i              => ctl_init_done_i,
             init_fail_i              => ctl_init_fail_i,
@@ -977,19 +1135,26 @@ begin
             emcy_node_i              => emcy_node,
             emcy_data_i              => emcy_data,
             emcy_time_i              => emcy_time,
-            sdo_busy_i               => sdo_busy,
+            sdo_busy_i               => sdo_busy or acfg_run,
             sdo_error_i              => sdo_error,
             sdo_abort_code_i         => sdo_abort_code,
             sdo_abort_sent_i         => sdo_abort_sent,
             sdo_size_i               => sdo_xfer_size,
             sdo_buf_rdata_i          => sdo_buf_rdata,
+            acfg_busy_i              => acfg_run,
+            acfg_nodes_ok_i          => acfg_nodes_ok,
+            acfg_nodes_fail_i        => acfg_nodes_fail,
+            acfg_fail_node_i         => acfg_fail_node,
+            acfg_fail_entry_i        => acfg_fail_entry,
+            acfg_fail_abort_i        => acfg_fail_abort,
             ev_node_i                => ev_node_any,
             ev_emcy_i                => ev_emcy,
-            ev_sdo_done_i            => sdo_done,
+            ev_sdo_done_i            => sdo_done and not acfg_run,
             ev_can_error_i           => ev_can_error,
             ev_sync_i                => sync_fire,
             ev_frame_error_i         => ev_frame_error,
             ev_init_i                => ev_init,
+            ev_acfg_done_i           => acfg_done,
             cnt_rx_frame_i           => cnt_rx_frame,
             cnt_tx_frame_i           => cnt_tx_frame,
             cnt_unexpected_i         => cnt_unexpected,

@@ -30,6 +30,7 @@ entity canopen_master_top is
         EMCY_DEPTH      : positive range 2 to 64    := 8;          -- EMCY FIFO entries
         N_TPDO          : positive range 1 to 32    := 8;          -- PDO channels sent
         N_RPDO          : positive range 1 to 32    := 8;          -- PDO channels received
+        CFG_DEPTH       : positive range 2 to 256   := 64;         -- configuration list entries
         RX_FIFO_DEPTH   : positive range 1 to 16    := 4;          -- received frames buffered
         WATCHDOG_US     : positive                  := 20_000;     -- longest wait per FSM state
         RESET_WAIT_US   : positive                  := 20          -- MCP2510 start-up wait [us]
@@ -127,6 +128,7 @@ begin
             EMCY_DEPTH  => EMCY_DEPTH,
             N_TPDO      => N_TPDO,
             N_RPDO      => N_RPDO,
+            CFG_DEPTH   => CFG_DEPTH,
             WATCHDOG_US => WATCHDOG_US
         )
         port map (

@@ -63,6 +63,13 @@ package canopen_regs_pkg is
     constant REG_SDO_ABORT_C       : natural := 16#72#; -- RO: SDO abort code of the last transfer
     constant REG_SDO_TIMEOUT_MS_C  : natural := 16#73#; -- RW: SDO response timeout
     constant REG_SDO_COB_C         : natural := 16#74#; -- RW: SDO COB-IDs
+    constant REG_ACFG_CTRL_C       : natural := 16#78#; -- RW + pulse
+    constant REG_ACFG_STATUS_C     : natural := 16#79#; -- RO: automatic configuration status
+    constant REG_ACFG_FAIL_C       : natural := 16#7A#; -- RO: first failure of the last run
+    constant REG_ACFG_ABORT_C      : natural := 16#7B#; -- RO
+    constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW
+    constant REG_ACFG_OBJ_C        : natural := 16#7D#; -- RW
+    constant REG_ACFG_VALUE_C      : natural := 16#7E#; -- WO
 
     -- ---------------------------------------------------------------------------------------------
     -- Per-node registers: slot k (0 .. MAX_NODES - 1) at address + k * REG_NODE_STRIDE_C
@@ -146,6 +153,7 @@ package canopen_regs_pkg is
     constant IRQ_STATUS_SYNC_C        : natural := 4; -- W1C: SYNC frame sent
     constant IRQ_STATUS_FRAME_ERROR_C : natural := 5; -- W1C: unexpected or malformed frame
     constant IRQ_STATUS_INIT_C        : natural := 6; -- W1C
+    constant IRQ_STATUS_CONFIG_C      : natural := 7; -- W1C
 
     -- IRQ_ENABLE
     constant IRQ_ENABLE_NODE_C        : natural := 0; -- RW: enable NODE
@@ -155,6 +163,7 @@ package canopen_regs_pkg is
     constant IRQ_ENABLE_SYNC_C        : natural := 4; -- RW: enable SYNC
     constant IRQ_ENABLE_FRAME_ERROR_C : natural := 5; -- RW: enable FRAME_ERROR
     constant IRQ_ENABLE_INIT_C        : natural := 6; -- RW: enable INIT
+    constant IRQ_ENABLE_CONFIG_C      : natural := 7; -- RW: enable CONFIG
 
     -- NMT_CMD
     constant NMT_CMD_CS_HI_C    : natural := 7;  -- WO
@@ -293,6 +302,46 @@ package canopen_regs_pkg is
     constant SDO_COB_RESPONSE_HI_C : natural := 26; -- RW: server -> client COB-ID, 0 = 580h + node
     constant SDO_COB_RESPONSE_LO_C : natural := 16;
 
+    -- ACFG_CTRL
+    constant ACFG_CTRL_START_C       : natural := 0; -- pulse
+    constant ACFG_CTRL_START_NODES_C : natural := 1; -- RW
+
+    -- ACFG_STATUS
+    constant ACFG_STATUS_BUSY_C          : natural := 0;  -- RO
+    constant ACFG_STATUS_DONE_C          : natural := 1;  -- RO
+    constant ACFG_STATUS_NODES_OK_HI_C   : natural := 15; -- RO
+    constant ACFG_STATUS_NODES_OK_LO_C   : natural := 8;
+    constant ACFG_STATUS_NODES_FAIL_HI_C : natural := 23; -- RO
+    constant ACFG_STATUS_NODES_FAIL_LO_C : natural := 16;
+
+    -- ACFG_FAIL
+    constant ACFG_FAIL_NODE_HI_C  : natural := 6;  -- RO: node-ID
+    constant ACFG_FAIL_NODE_LO_C  : natural := 0;
+    constant ACFG_FAIL_ENTRY_HI_C : natural := 15; -- RO: table entry number
+    constant ACFG_FAIL_ENTRY_LO_C : natural := 8;
+
+    -- ACFG_ABORT
+    constant ACFG_ABORT_CODE_HI_C : natural := 31; -- RO
+    constant ACFG_ABORT_CODE_LO_C : natural := 0;
+
+    -- ACFG_ENTRY
+    constant ACFG_ENTRY_ENTRY_HI_C : natural := 7;  -- RW
+    constant ACFG_ENTRY_ENTRY_LO_C : natural := 0;
+    constant ACFG_ENTRY_NODE_HI_C  : natural := 14; -- RW: node-ID of the entry, 0 = end of the list
+    constant ACFG_ENTRY_NODE_LO_C  : natural := 8;
+    constant ACFG_ENTRY_SIZE_HI_C  : natural := 18; -- RW: value size in bytes, 1..4
+    constant ACFG_ENTRY_SIZE_LO_C  : natural := 16;
+
+    -- ACFG_OBJ
+    constant ACFG_OBJ_INDEX_HI_C    : natural := 15; -- RW: object index
+    constant ACFG_OBJ_INDEX_LO_C    : natural := 0;
+    constant ACFG_OBJ_SUBINDEX_HI_C : natural := 23; -- RW: sub-index
+    constant ACFG_OBJ_SUBINDEX_LO_C : natural := 16;
+
+    -- ACFG_VALUE
+    constant ACFG_VALUE_VALUE_HI_C : natural := 31; -- WO
+    constant ACFG_VALUE_VALUE_LO_C : natural := 0;
+
     -- NODE_CFG
     constant NODE_CFG_NODE_ID_HI_C    : natural := 6;  -- RW: node-ID, 0 = slot unused
     constant NODE_CFG_NODE_ID_LO_C    : natural := 0;
@@ -425,7 +474,7 @@ package canopen_regs_pkg is
     -- Reset words (registers whose every readable field has one)
     -- ---------------------------------------------------------------------------------------------
     constant ID_RESET_C              : std_logic_vector(31 downto 0) := x"434F3031";
-    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00010000";
+    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00010001";
     constant CTRL_RESET_C            : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_STATUS_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_ENABLE_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
@@ -447,6 +496,10 @@ package canopen_regs_pkg is
     constant SDO_OBJ_RESET_C         : std_logic_vector(31 downto 0) := x"00000000";
     constant SDO_TIMEOUT_MS_RESET_C  : std_logic_vector(31 downto 0) := x"000003E8";
     constant SDO_COB_RESET_C         : std_logic_vector(31 downto 0) := x"00000000";
+    constant ACFG_CTRL_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant ACFG_ENTRY_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
+    constant ACFG_OBJ_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
+    constant ACFG_VALUE_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
     constant NODE_CFG_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
     constant NODE_TIME_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
     constant PDO_SEL_RESET_C         : std_logic_vector(31 downto 0) := x"00000000";

@@ -135,13 +135,14 @@ IRQ_BITS = (
     ("SYNC", "SYNC frame sent"),
     ("FRAME_ERROR", "unexpected or malformed frame"),
     ("INIT", "initialisation finished (done or failed)"),
+    ("CONFIG", "automatic configuration list finished (ACFG_STATUS holds the result)"),
 )
 
 REGISTERS: tuple[Register, ...] = (
     R("ID", 0x00, "RO", 'identification, "CO01"',
       F("VALUE", "31:0", "RO", 0x434F3031, 'ASCII "CO01"')),
     R("VERSION", 0x01, "RO", "register map version",
-      F("MINOR", "15:0", "RO", 0x0000, "minor version"),
+      F("MINOR", "15:0", "RO", 0x0001, "minor version"),
       F("MAJOR", "31:16", "RO", 0x0001, "major version")),
     R("CTRL", 0x02, "RW + pulse", "control",
       F("SYNC_EN", 0, "RW", 0, "1: the SYNC producer runs (SYNC_PERIOD_US /= 0)"),
@@ -222,6 +223,32 @@ REGISTERS: tuple[Register, ...] = (
     R("SDO_COB", 0x74, "RW", "SDO COB-IDs",
       F("REQUEST", "10:0", "RW", 0, "client -> server COB-ID, 0 = 600h + node"),
       F("RESPONSE", "26:16", "RW", 0, "server -> client COB-ID, 0 = 580h + node")),
+    R("ACFG_CTRL", 0x78, "RW + pulse", "automatic configuration (canopen_autoconfig) control",
+      F("START", 0, "pulse", 0, "write 1: run the configuration list from entry 0 (waits for "
+                                "a running host SDO transfer to end)"),
+      F("START_NODES", 1, "RW", 0, "1: send NMT start to each node whose entries all "
+                                   "succeeded")),
+    R("ACFG_STATUS", 0x79, "RO", "automatic configuration status",
+      F("BUSY", 0, "RO", None, "the list is running (it owns the SDO client: SDO_CMD.BUSY "
+                               "reads 1)"),
+      F("DONE", 1, "RO", 0, "sticky: the last run finished, cleared by the next START"),
+      F("NODES_OK", "15:8", "RO", None, "nodes whose entries all succeeded in the last run"),
+      F("NODES_FAIL", "23:16", "RO", None, "nodes stopped by a failing entry in the last run")),
+    R("ACFG_FAIL", 0x7A, "RO", "first failure of the last run",
+      F("NODE", "6:0", "RO", None, "node-ID"),
+      F("ENTRY", "15:8", "RO", None, "table entry number")),
+    R("ACFG_ABORT", 0x7B, "RO", "first failure of the last run: SDO abort code",
+      F("CODE", "31:0", "RO", None, "CiA 301 abort code (received or sent by the master)")),
+    R("ACFG_ENTRY", 0x7C, "RW", "table entry written by the next ACFG_VALUE write",
+      F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each ACFG_VALUE "
+                                 "write"),
+      F("NODE", "14:8", "RW", 0, "node-ID of the entry, 0 = end of the list"),
+      F("SIZE", "18:16", "RW", 0, "value size in bytes, 1..4")),
+    R("ACFG_OBJ", 0x7D, "RW", "object of the table entry written next",
+      F("INDEX", "15:0", "RW", 0, "object index"),
+      F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
+    R("ACFG_VALUE", 0x7E, "WO", "value of the table entry; a write stores the whole entry",
+      F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame")),
 )
 
 NODE_GROUP = Group(

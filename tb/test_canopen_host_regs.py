@@ -42,12 +42,16 @@ STATUS_INPUTS = {
     "tec_i": 8, "rec_i": 8, "eflg_i": 8, "emcy_count_i": 7, "emcy_lost_i": 1, "emcy_node_i": 7,
     "emcy_data_i": 64, "emcy_time_i": 32, "sdo_busy_i": 1, "sdo_error_i": 1,
     "sdo_abort_code_i": 32, "sdo_abort_sent_i": 1, "sdo_size_i": 11,
+    "acfg_busy_i": 1, "acfg_nodes_ok_i": 8, "acfg_nodes_fail_i": 8, "acfg_fail_node_i": 7,
+    "acfg_fail_entry_i": 8, "acfg_fail_abort_i": 32,
 }
 SLOT_INPUTS = {"node_nmt_i": 7, "node_alive_i": 1, "node_lost_i": 1, "node_toggle_i": 1,
                "node_bootup_i": 1, "node_last_i": 32}
 EVENTS = {"NODE": "ev_node_i", "EMCY": "ev_emcy_i", "SDO_DONE": "ev_sdo_done_i",
           "CAN_ERROR": "ev_can_error_i", "SYNC": "ev_sync_i", "FRAME_ERROR": "ev_frame_error_i",
-          "INIT": "ev_init_i"}
+          "INIT": "ev_init_i", "CONFIG": "ev_acfg_done_i"}
+#: every IRQ_STATUS bit
+IRQ_ALL = (1 << len(EVENTS)) - 1
 COUNT_INPUTS = {"RX_FRAMES": "cnt_rx_frame_i", "TX_FRAMES": "cnt_tx_frame_i",
                 "UNEXPECTED": "cnt_unexpected_i", "MALFORMED": "cnt_malformed_i",
                 "RX_OVERFLOW": "cnt_rx_overflow_i", "TX_ERROR": "cnt_tx_error_i",
@@ -77,6 +81,12 @@ RO_SOURCES = {
     ("NODE_STATUS", "TOGGLE_ERR"): ("node_toggle_i", 0),
     ("NODE_STATUS", "BOOTUP"): ("node_bootup_i", 0),
     ("NODE_LAST_MS", "VALUE"): ("node_last_i", 0),
+    ("ACFG_STATUS", "BUSY"): ("acfg_busy_i", 0),
+    ("ACFG_STATUS", "NODES_OK"): ("acfg_nodes_ok_i", 0),
+    ("ACFG_STATUS", "NODES_FAIL"): ("acfg_nodes_fail_i", 0),
+    ("ACFG_FAIL", "NODE"): ("acfg_fail_node_i", 0),
+    ("ACFG_FAIL", "ENTRY"): ("acfg_fail_entry_i", 0),
+    ("ACFG_ABORT", "CODE"): ("acfg_fail_abort_i", 0),
 }
 
 #: RW fields -> output port (slot fields: slice slot * width of the port)
@@ -92,6 +102,9 @@ RW_OUTPUTS = {
     ("NODE_CFG", "AUTOSTART"): "node_cfg_autostart_o",
     ("NODE_CFG", "RESET_ON_LOSS"): "node_cfg_reset_on_loss_o",
     ("NODE_TIME", "TIME_MS"): "node_cfg_time_o", ("NODE_TIME", "LIFE_FACTOR"): "node_cfg_life_o",
+    ("ACFG_CTRL", "START_NODES"): "acfg_start_nodes_o",
+    ("ACFG_ENTRY", "NODE"): "acfg_tbl_node_o", ("ACFG_ENTRY", "SIZE"): "acfg_tbl_size_o",
+    ("ACFG_OBJ", "INDEX"): "acfg_tbl_index_o", ("ACFG_OBJ", "SUBINDEX"): "acfg_tbl_sub_o",
 }
 
 #: pulse outputs and the output fields sampled with them
@@ -99,6 +112,9 @@ STROBES = {
     "reinit_o": (), "nmt_req_o": ("nmt_cs_o", "nmt_node_o"), "node_clear_o": (),
     "emcy_clear_o": (), "emcy_pop_o": (),
     "sdo_req_o": ("sdo_node_o", "sdo_upload_o", "sdo_size_o", "sdo_index_o", "sdo_subindex_o"),
+    "acfg_start_o": (),
+    "acfg_tbl_we_o": ("acfg_tbl_addr_o", "acfg_tbl_node_o", "acfg_tbl_index_o",
+                      "acfg_tbl_sub_o", "acfg_tbl_size_o", "acfg_tbl_value_o"),
 }
 
 
@@ -420,12 +436,12 @@ async def run_irq_w1c_and_masking(dut):
         assert await host.irq_status() == bit, f"{name}: status {await host.irq_status():#x}"
         await RisingEdge(dut.clk_i)
         assert dut.irq_o.value == 0, f"{name}: irq_o high while disabled"
-        await host.irq_enable(0x7F & ~bit)
+        await host.irq_enable(IRQ_ALL & ~bit)
         assert dut.irq_o.value == 0
         await host.irq_enable(name)
         await ReadOnly()
         assert dut.irq_o.value == 1, f"{name}: irq_o low while enabled and pending"
-        await host.irq_clear(0x7F & ~bit)  # other bits: nothing to clear
+        await host.irq_clear(IRQ_ALL & ~bit)  # other bits: nothing to clear
         assert await host.irq_status() == bit
         await host.write("IRQ_STATUS", 0xFFFFFFFF, byteenable=0b1110)  # lane 0 disabled
         assert await host.irq_status() == bit
@@ -440,14 +456,14 @@ async def run_irq_w1c_and_masking(dut):
     await FallingEdge(dut.clk_i)
     for sig in EVENTS.values():
         getattr(dut, sig).value = 0
-    await host.irq_enable(0x7F)
-    assert await host.irq_status() == 0x7F
+    await host.irq_enable(IRQ_ALL)
+    assert await host.irq_status() == IRQ_ALL
     await host.irq_clear(["SYNC", "EMCY"])
-    assert await host.irq_status() == 0x7F & ~(R.IRQ_STATUS_SYNC | R.IRQ_STATUS_EMCY)
-    await host.irq_clear(0x7F)
+    assert await host.irq_status() == IRQ_ALL & ~(R.IRQ_STATUS_SYNC | R.IRQ_STATUS_EMCY)
+    await host.irq_clear(IRQ_ALL)
     assert await host.irq_status() == 0 and dut.irq_o.value == 0
     # set and clear in the same cycle: the event wins
-    await tb.raw_write(R.REG_IRQ_STATUS, 0x7F, with_input="ev_sync_i")
+    await tb.raw_write(R.REG_IRQ_STATUS, IRQ_ALL, with_input="ev_sync_i")
     assert await host.irq_status() == R.IRQ_STATUS_SYNC
     await RisingEdge(dut.clk_i)
     assert dut.irq_o.value == 1
@@ -461,7 +477,10 @@ async def run_pulses_one_cycle_with_fields(dut):
     unchanged); SDO_CMD -> sdo_req_o with node/upload/size and the SDO_OBJ index/sub-index;
     EMCY_POP (any data) -> emcy_pop_o; EMCY_STATUS.LOST -> emcy_clear_o; NODE_STATUS(k) bits
     9..11 -> node_clear_o(k) only; writing 0 (or 1s in disabled lanes) to W1C/pulse bits makes no
-    pulse; every strobe is one cycle wide (cycle monitor) and comes once per write.
+    pulse; ACFG_VALUE -> acfg_tbl_we_o with the entry's fields, the entry number counting up
+    (and wrapping); ACFG_CTRL.START -> acfg_start_o, START_NODES alone -> none; ACFG_STATUS.DONE
+    set by ev_acfg_done_i, cleared by START; every strobe is one cycle wide (cycle monitor) and
+    comes once per write.
     """
     tb = TB(dut)
     await tb.reset()
@@ -509,6 +528,32 @@ async def run_pulses_one_cycle_with_fields(dut):
         await host.clear_node(slot)
         await tb.settle()
         assert [v for _, v, _ in tb.pulses_of("node_clear_o", c0)] == [1 << slot]
+    # configuration list: each ACFG_VALUE write stores one entry, the entry number counts up
+    c0 = tb.cycle
+    await host.write("ACFG_ENTRY", R.make("ACFG_ENTRY", ENTRY=0xFE, NODE=0x7F, SIZE=4))
+    await host.write("ACFG_OBJ", R.make("ACFG_OBJ", INDEX=0x1400, SUBINDEX=1))
+    await host.write("ACFG_VALUE", 0x80000201)
+    await host.write("ACFG_VALUE", 0x00000201)
+    await tb.settle()
+    got = tb.pulses_of("acfg_tbl_we_o", c0)
+    entry = {"acfg_tbl_node_o": 0x7F, "acfg_tbl_index_o": 0x1400, "acfg_tbl_sub_o": 1,
+             "acfg_tbl_size_o": 4}
+    assert [g[2] for g in got] == [
+        {**entry, "acfg_tbl_addr_o": 0xFE, "acfg_tbl_value_o": 0x80000201},
+        {**entry, "acfg_tbl_addr_o": 0xFF, "acfg_tbl_value_o": 0x00000201}], got
+    assert R.get_field("ACFG_ENTRY", "ENTRY", await host.read("ACFG_ENTRY")) == 0  # wraps
+    c0 = tb.cycle
+    await host.write("ACFG_CTRL", R.ACFG_CTRL_START_NODES)  # RW bit only: no start
+    await host.write("ACFG_CTRL", R.ACFG_CTRL_START | R.ACFG_CTRL_START_NODES)
+    await tb.settle()
+    assert len(tb.pulses_of("acfg_start_o", c0)) == 1
+    assert await host.read("ACFG_CTRL") == R.ACFG_CTRL_START_NODES
+    # ACFG_STATUS.DONE: set by the done event, cleared by the next START
+    assert not await host.read("ACFG_STATUS") & R.ACFG_STATUS_DONE
+    await tb.strobe("ev_acfg_done_i")
+    assert await host.read("ACFG_STATUS") & R.ACFG_STATUS_DONE
+    await host.write("ACFG_CTRL", R.ACFG_CTRL_START)
+    assert not await host.read("ACFG_STATUS") & R.ACFG_STATUS_DONE
     strobes_seen = {n for _, n, _, _ in tb.pulses}
     assert strobes_seen == set(STROBES), strobes_seen
 

@@ -1,13 +1,16 @@
 """The demo (``make demo``): the CANopen master running a small 4-axis drive network.
 
 Scenario: the master initialises its MCP2510; four CiA 402-style drives (nodes 1..4, crystals
-at -100/-50/+50/+100 ppm) boot; the host configures heartbeat supervision, sets each drive's
-heartbeat producer time by SDO download (1017h), starts the network (NMT start all), sets up a
-PDO cycle (a set-point PDO to each drive and a feedback PDO from each, every SYNC) and runs SYNC
-every 2 ms with a counter (4 axes x two 6-byte PDOs need about 0.9 ms of the bus per cycle);
-drive 3 then drops off the bus and the master reports it. The test
-writes a timeline, a summary and the bus trace (candump .log and .asc) to ``build/demo/`` and
-asserts the outcome, so the demo is also a system smoke test in ``make test``.
+at -100/-50/+50/+100 ppm) boot; the host configures heartbeat supervision, loads the master's
+configuration list (per drive: RPDO1 and TPDO1 re-mapped, TPDO1 on every SYNC, heartbeat
+producer 1017h = 10 ms; 56 SDO downloads) and starts it: the master configures each drive by
+SDO and then NMT-starts it (the thesis' boot sequence); the host reads each drive's device name
+by a segmented SDO upload, sets up a PDO cycle (a set-point PDO to each drive and a feedback
+PDO from each, every SYNC) and runs SYNC every 2 ms with a counter (4 axes x two 6-byte PDOs
+need about 0.9 ms of the bus per cycle); drive 3 then drops off the bus and the master reports
+it. The test writes a timeline, a summary and the bus trace (candump .log and .asc) to
+``build/demo/`` and asserts the outcome, so the demo is also a system smoke test in
+``make test``.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from cocotb.triggers import Timer
 
 from sim_models.canopen_slave import NmtState
 from sim_models.sim_time import PS_PER_MS, PS_PER_US
+from tb.tblib.drive_config import drive_entries
 from tb.tblib.model_clock import sim_time_ps
 from tb.tblib.runner import ROOT, run_cocotb
 from tb.tblib.system_tb import SystemTB
@@ -60,9 +64,11 @@ def timeline_line(t_ps: int, text: str) -> str:
 async def run_demo(dut):
     """Purpose: the demo scenario end to end (see the module docstring).
 
-    Verifies: all four drives reach operational inside the drive; heartbeat times set by SDO
-    are in the drives' object dictionaries; SYNC runs with an exact 1 ms period on the idle
-    bus; the dropped drive is reported lost (and only that one).
+    Verifies: the configuration list configures and starts all four drives (no failure); its
+    values (PDO mappings, heartbeat time) are in the drives' object dictionaries and the drives
+    reach operational inside the drive; the host's SDO uploads return the drives' names; SYNC
+    runs with an exact 2 ms period on the idle bus; the set-points reach the drives; the
+    dropped drive is reported lost (and only that one).
     """
     OUT.mkdir(parents=True, exist_ok=True)
     tb = SystemTB(dut, ppm=(-100, -50, 50, 100))
@@ -80,12 +86,17 @@ async def run_demo(dut):
     await tb.wait_for(lambda: all(s.nmt_state == NmtState.PRE_OPERATIONAL for s in tb.slaves),
                       5_000, 50, "boot-ups")
     await Timer(300, "us")
-    for s in tb.slaves:
-        await tb.host.sdo_download(s.node_id, 0x1017, 0, (10).to_bytes(2, "little"))
-        note(f"host: SDO download 1017h:00 = 10 ms to node {s.node_id} done")
-    await tb.host.nmt(0x01, 0)
+    entries = [e for s in tb.slaves for e in drive_entries(s.node_id, hb_ms=10)]
+    await tb.host.acfg_load(entries)
+    note(f"host: configuration list loaded ({len(entries)} SDO downloads for nodes 1-4)")
+    acfg = await tb.host.acfg_run(start_nodes=True)
+    note(f"master: configuration list done, {acfg['nodes_ok']} nodes configured and started, "
+         f"{acfg['nodes_fail']} failed")
     await tb.wait_for(tb.all_operational, 2_000, 10, "operational")
     note("all drives operational (state read inside each drive)")
+    names = [await tb.host.sdo_upload(s.node_id, 0x1008, 0) for s in tb.slaves]
+    shown = sorted({n.decode(errors="replace") for n in names})
+    note(f"host: segmented SDO upload of 1008h (device name) from drives 1-4: {shown}")
     for ch, s in enumerate(tb.slaves):
         # set-point to the drive's RPDO1 (controlword + target position), feedback from its
         # TPDO1 (statusword + actual position), both every SYNC
@@ -176,8 +187,11 @@ async def run_demo(dut):
     # ------------------------------------------------------------------ checks
     assert lost_at is not None, "the master did not report node 3"
     assert [n["lost"] for n in nodes] == [False, False, True, False], nodes
+    assert acfg["nodes_ok"] == 4 and acfg["nodes_fail"] == 0, acfg
+    assert names == [s.read_raw(0x1008, 0) for s in tb.slaves]
     for s in tb.slaves:
         assert s.read(0x1017, 0) == 10, f"node {s.node_id} 1017h not set by SDO"
+        assert s.read(0x1A00, 1) == 0x6041_0010 and s.read(0x1600, 2) == 0x607A_0020
         assert s.read(0x607A, 0) == 10_000 * s.node_id, f"node {s.node_id} set-point"
     assert all(f["seq"] >= 18 for f in feedback), feedback
     assert counters["unexpected"] == 0, counters

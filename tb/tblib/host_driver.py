@@ -17,8 +17,9 @@ from collections.abc import Iterable
 from typing import Any
 
 from cocotb.handle import SimHandleBase
-from cocotb.triggers import ClockCycles, Lock, NextTimeStep, RisingEdge
+from cocotb.triggers import ClockCycles, Lock, NextTimeStep, RisingEdge, Timer
 from cocotb.types import LogicArray
+from cocotb.utils import get_sim_time
 from cocotb_bus.drivers.avalon import AvalonMaster
 
 from tb.tblib import regmap as R
@@ -418,3 +419,48 @@ class CanopenMasterHost:
     async def pdo_clear_counters(self) -> None:
         """Clear PDO_CNT_* and every channel's LATE / LEN_ERR / MISSED counter."""
         await self.write("PDO_CTRL", R.PDO_CTRL_CLR_COUNTERS)
+
+    # ------------------------------------------------------------ automatic configuration
+    async def acfg_load(self, entries: Iterable[tuple[int, int, int, int, int]],
+                        first: int = 0, terminate: bool = True) -> int:
+        """Write the configuration list: ``(node, index, sub, size, value)`` per entry from
+        entry ``first`` on (ACFG_ENTRY counts up after each ACFG_VALUE write); ``terminate``
+        appends the node-0 end marker. Returns the number of entries written."""
+        n = 0
+        await self.write("ACFG_ENTRY", R.make("ACFG_ENTRY", ENTRY=first))
+        rows = list(entries) + ([(0, 0, 0, 0, 0)] if terminate else [])
+        for node, index, sub, size, value in rows:
+            await self.write("ACFG_ENTRY", R.make("ACFG_ENTRY", ENTRY=first + n, NODE=node,
+                                                  SIZE=size))
+            await self.write("ACFG_OBJ", R.make("ACFG_OBJ", INDEX=index, SUBINDEX=sub))
+            await self.write("ACFG_VALUE", value & 0xFFFFFFFF)
+            n += 1
+        return n
+
+    async def acfg_start(self, start_nodes: bool = True) -> None:
+        """Run the configuration list (ACFG_CTRL.START), optionally NMT-starting each node
+        whose entries all succeeded."""
+        nodes = R.ACFG_CTRL_START_NODES if start_nodes else 0
+        await self.write("ACFG_CTRL", R.ACFG_CTRL_START | nodes)
+
+    async def acfg_status(self) -> dict[str, int | bool]:
+        """ACFG_STATUS, ACFG_FAIL and ACFG_ABORT decoded."""
+        st = await self.read_fields("ACFG_STATUS")
+        fail = await self.read_fields("ACFG_FAIL")
+        return {"busy": bool(st["BUSY"]), "done": bool(st["DONE"]),
+                "nodes_ok": st["NODES_OK"], "nodes_fail": st["NODES_FAIL"],
+                "fail_node": fail["NODE"], "fail_entry": fail["ENTRY"],
+                "fail_abort": await self.read("ACFG_ABORT")}
+
+    async def acfg_run(self, start_nodes: bool = True, timeout_us: float = 1_000_000,
+                       poll_us: float = 50) -> dict[str, int | bool]:
+        """Start the list and wait (polling ACFG_STATUS.DONE) until it finished."""
+        await self.acfg_start(start_nodes)
+        t_end = get_sim_time("us") + timeout_us
+        while True:
+            st = await self.acfg_status()
+            if st["done"] and not st["busy"]:
+                return st
+            if get_sim_time("us") > t_end:
+                raise TimeoutError(f"configuration list not finished in {timeout_us} us: {st}")
+            await Timer(poll_us, "us")

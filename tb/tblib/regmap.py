@@ -50,6 +50,13 @@ REG_SDO_CMD = 0x71
 REG_SDO_ABORT = 0x72
 REG_SDO_TIMEOUT_MS = 0x73
 REG_SDO_COB = 0x74
+REG_ACFG_CTRL = 0x78
+REG_ACFG_STATUS = 0x79
+REG_ACFG_FAIL = 0x7A
+REG_ACFG_ABORT = 0x7B
+REG_ACFG_ENTRY = 0x7C
+REG_ACFG_OBJ = 0x7D
+REG_ACFG_VALUE = 0x7E
 
 # per-node registers (slot 0)
 REG_NODE_CFG = 0x20
@@ -119,6 +126,7 @@ IRQ_STATUS_CAN_ERROR = 0x8  # bit 3, W1C
 IRQ_STATUS_SYNC = 0x10  # bit 4, W1C
 IRQ_STATUS_FRAME_ERROR = 0x20  # bit 5, W1C
 IRQ_STATUS_INIT = 0x40  # bit 6, W1C
+IRQ_STATUS_CONFIG = 0x80  # bit 7, W1C
 # IRQ_ENABLE
 IRQ_ENABLE_NODE = 0x1  # bit 0, RW
 IRQ_ENABLE_EMCY = 0x2  # bit 1, RW
@@ -127,6 +135,7 @@ IRQ_ENABLE_CAN_ERROR = 0x8  # bit 3, RW
 IRQ_ENABLE_SYNC = 0x10  # bit 4, RW
 IRQ_ENABLE_FRAME_ERROR = 0x20  # bit 5, RW
 IRQ_ENABLE_INIT = 0x40  # bit 6, RW
+IRQ_ENABLE_CONFIG = 0x80  # bit 7, RW
 # NMT_CMD
 NMT_CMD_CS_SHIFT = 0
 NMT_CMD_CS_MASK = 0xFF  # bits 7:0, WO
@@ -235,6 +244,39 @@ SDO_COB_REQUEST_SHIFT = 0
 SDO_COB_REQUEST_MASK = 0x7FF  # bits 10:0, RW
 SDO_COB_RESPONSE_SHIFT = 16
 SDO_COB_RESPONSE_MASK = 0x7FF0000  # bits 26:16, RW
+# ACFG_CTRL
+ACFG_CTRL_START = 0x1  # bit 0, pulse
+ACFG_CTRL_START_NODES = 0x2  # bit 1, RW
+# ACFG_STATUS
+ACFG_STATUS_BUSY = 0x1  # bit 0, RO
+ACFG_STATUS_DONE = 0x2  # bit 1, RO
+ACFG_STATUS_NODES_OK_SHIFT = 8
+ACFG_STATUS_NODES_OK_MASK = 0xFF00  # bits 15:8, RO
+ACFG_STATUS_NODES_FAIL_SHIFT = 16
+ACFG_STATUS_NODES_FAIL_MASK = 0xFF0000  # bits 23:16, RO
+# ACFG_FAIL
+ACFG_FAIL_NODE_SHIFT = 0
+ACFG_FAIL_NODE_MASK = 0x7F  # bits 6:0, RO
+ACFG_FAIL_ENTRY_SHIFT = 8
+ACFG_FAIL_ENTRY_MASK = 0xFF00  # bits 15:8, RO
+# ACFG_ABORT
+ACFG_ABORT_CODE_SHIFT = 0
+ACFG_ABORT_CODE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# ACFG_ENTRY
+ACFG_ENTRY_ENTRY_SHIFT = 0
+ACFG_ENTRY_ENTRY_MASK = 0xFF  # bits 7:0, RW
+ACFG_ENTRY_NODE_SHIFT = 8
+ACFG_ENTRY_NODE_MASK = 0x7F00  # bits 14:8, RW
+ACFG_ENTRY_SIZE_SHIFT = 16
+ACFG_ENTRY_SIZE_MASK = 0x70000  # bits 18:16, RW
+# ACFG_OBJ
+ACFG_OBJ_INDEX_SHIFT = 0
+ACFG_OBJ_INDEX_MASK = 0xFFFF  # bits 15:0, RW
+ACFG_OBJ_SUBINDEX_SHIFT = 16
+ACFG_OBJ_SUBINDEX_MASK = 0xFF0000  # bits 23:16, RW
+# ACFG_VALUE
+ACFG_VALUE_VALUE_SHIFT = 0
+ACFG_VALUE_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, WO
 # NODE_CFG
 NODE_CFG_NODE_ID_SHIFT = 0
 NODE_CFG_NODE_ID_MASK = 0x7F  # bits 6:0, RW
@@ -341,7 +383,7 @@ PDO_CNT_UNEXPECTED_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 
 # reset words
 ID_RESET = 0x434F3031
-VERSION_RESET = 0x00010000
+VERSION_RESET = 0x00010001
 CTRL_RESET = 0x00000000
 IRQ_STATUS_RESET = 0x00000000
 IRQ_ENABLE_RESET = 0x00000000
@@ -363,6 +405,10 @@ EMCY_POP_RESET = 0x00000000
 SDO_OBJ_RESET = 0x00000000
 SDO_TIMEOUT_MS_RESET = 0x000003E8
 SDO_COB_RESET = 0x00000000
+ACFG_CTRL_RESET = 0x00000000
+ACFG_ENTRY_RESET = 0x00000000
+ACFG_OBJ_RESET = 0x00000000
+ACFG_VALUE_RESET = 0x00000000
 NODE_CFG_RESET = 0x00000000
 NODE_TIME_RESET = 0x00000000
 PDO_SEL_RESET = 0x00000000
@@ -396,9 +442,9 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "VERSION": RegInfo(
-        addr=0x01, access="RO", reset=0x10000, stride=0,
+        addr=0x01, access="RO", reset=0x10001, stride=0,
         fields={
-            "MINOR": FieldInfo(15, 0, "RO", 0x0),
+            "MINOR": FieldInfo(15, 0, "RO", 0x1),
             "MAJOR": FieldInfo(31, 16, "RO", 0x1),
         },
     ),
@@ -432,6 +478,7 @@ REGISTERS: dict[str, RegInfo] = {
             "SYNC": FieldInfo(4, 4, "W1C", 0x0),
             "FRAME_ERROR": FieldInfo(5, 5, "W1C", 0x0),
             "INIT": FieldInfo(6, 6, "W1C", 0x0),
+            "CONFIG": FieldInfo(7, 7, "W1C", 0x0),
         },
     ),
     "IRQ_ENABLE": RegInfo(
@@ -444,6 +491,7 @@ REGISTERS: dict[str, RegInfo] = {
             "SYNC": FieldInfo(4, 4, "RW", 0x0),
             "FRAME_ERROR": FieldInfo(5, 5, "RW", 0x0),
             "INIT": FieldInfo(6, 6, "RW", 0x0),
+            "CONFIG": FieldInfo(7, 7, "RW", 0x0),
         },
     ),
     "NMT_CMD": RegInfo(
@@ -632,6 +680,56 @@ REGISTERS: dict[str, RegInfo] = {
         fields={
             "REQUEST": FieldInfo(10, 0, "RW", 0x0),
             "RESPONSE": FieldInfo(26, 16, "RW", 0x0),
+        },
+    ),
+    "ACFG_CTRL": RegInfo(
+        addr=0x78, access="RW + pulse", reset=0x0, stride=0,
+        fields={
+            "START": FieldInfo(0, 0, "pulse", 0x0),
+            "START_NODES": FieldInfo(1, 1, "RW", 0x0),
+        },
+    ),
+    "ACFG_STATUS": RegInfo(
+        addr=0x79, access="RO", reset=None, stride=0,
+        fields={
+            "BUSY": FieldInfo(0, 0, "RO", None),
+            "DONE": FieldInfo(1, 1, "RO", 0x0),
+            "NODES_OK": FieldInfo(15, 8, "RO", None),
+            "NODES_FAIL": FieldInfo(23, 16, "RO", None),
+        },
+    ),
+    "ACFG_FAIL": RegInfo(
+        addr=0x7A, access="RO", reset=None, stride=0,
+        fields={
+            "NODE": FieldInfo(6, 0, "RO", None),
+            "ENTRY": FieldInfo(15, 8, "RO", None),
+        },
+    ),
+    "ACFG_ABORT": RegInfo(
+        addr=0x7B, access="RO", reset=None, stride=0,
+        fields={
+            "CODE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "ACFG_ENTRY": RegInfo(
+        addr=0x7C, access="RW", reset=0x0, stride=0,
+        fields={
+            "ENTRY": FieldInfo(7, 0, "RW", 0x0),
+            "NODE": FieldInfo(14, 8, "RW", 0x0),
+            "SIZE": FieldInfo(18, 16, "RW", 0x0),
+        },
+    ),
+    "ACFG_OBJ": RegInfo(
+        addr=0x7D, access="RW", reset=0x0, stride=0,
+        fields={
+            "INDEX": FieldInfo(15, 0, "RW", 0x0),
+            "SUBINDEX": FieldInfo(23, 16, "RW", 0x0),
+        },
+    ),
+    "ACFG_VALUE": RegInfo(
+        addr=0x7E, access="WO", reset=0x0, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "WO", None),
         },
     ),
     "NODE_CFG": RegInfo(
