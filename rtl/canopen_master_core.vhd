@@ -508,6 +508,9 @@ begin
             window_us        <= (others => '0');
             init_done_q      <= '0';
             init_fail_q      <= '0';
+            can_tec          <= (others => '0');
+            can_rec          <= (others => '0');
+            can_eflg         <= (others => '0');
         elsif rising_edge(clk_i) then
             sync_fire    <= '0';
             reinit_pulse <= '0';
