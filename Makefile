@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.requirements.sha256
 RTL    := $(shell sed -e 's/\#.*//' -e '/^[[:space:]]*$$/d' -e 's|^|rtl/|' rtl/files.f)
 PYDIRS := tb sim_models scripts
 
-.PHONY: help setup test demo lint synth-check synth bench waves docs clean
+.PHONY: help setup test demo lint synth-check synth bench waves docs drift-report clean
 
 help:
 	@echo "make setup        install Debian packages (ghdl-llvm, yosys) and the pinned .venv"
@@ -19,6 +19,7 @@ help:
 	@echo "make bench        benchmarks -> build/bench/results.json"
 	@echo "make waves TEST='<pytest id>'   re-run one test with a .ghw waveform"
 	@echo "make docs         render the WaveDrom timing diagrams in docs/wavedrom"
+	@echo "make drift-report Omni-ID clock-drift plots and dropout tables -> build/drift"
 	@echo "make clean        remove build outputs"
 
 # set-up runs when the venv is missing or the pinned requirements changed
@@ -58,6 +59,9 @@ waves: $(STAMP)
 
 docs: $(STAMP)
 	$(PY) scripts/render_wavedrom.py
+
+drift-report: $(STAMP)
+	$(PY) scripts/drift_report.py
 
 clean:
 	rm -rf build .pytest_cache .ruff_cache

@@ -1,0 +1,462 @@
+"""Clock-drift experiments of the NCTU thesis on the Python models (AT-5..AT-10, AT-13).
+
+Transaction-level and pure Python: an :class:`~sim_models.omni.master_model.OmniMaster` and
+one or more :class:`~sim_models.omni.slave.OmniSlave` on a
+:class:`~sim_models.can_bus.CanBus`, all on one :class:`~sim_models.sim_time.Scheduler`. Each
+``run_*``/``at*`` function builds a fresh network, runs it and returns plain dataclasses /
+dicts (JSON-friendly) with the measured figures *and* the model figures they are checked
+against; the model formulas (digest §3.2, §5.3) live here too:
+
+* offset of sample n: ``t_dif(n) = s_n - m_n`` (slave sample instant minus master cycle
+  instant), model ``t_dif(0) + n·ρ·T_s`` while free-running;
+* delivery latency of a frame: ``D = (frame bits - 3)·τ_bit + T_post`` (SOF to end of EOF,
+  the slave's reception timestamp; the master's frame starts at its cycle instant on an idle
+  bus, so ``T_pre = T_wait = 0``);
+* a free-running sample n holds the command of its own cycle iff ``D_n < t_dif(n) < T_s +
+  D_{n+1}``; the first n outside is the dropout onset, model :func:`n_drift_model`;
+* dropout rate (Eq 2-2) ``p = N_dropout / N`` and ``N_drift = N - N_dropout`` (Eq 2-3);
+* re-phase interval (AT-10) :func:`k_max`: ``K <= floor((T_s - D - margin) / (|ρ|·T_s))``.
+
+Drift is given as the digest's *period error* ρ in ppm (positive: the slave's period is longer
+and its samples lag more and more); see :func:`~sim_models.omni.slave.clock_for_period_error`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from sim_models.can_bus import CanBus, frame_length_bits, worst_case_bits
+from sim_models.omni import codec as oc
+from sim_models.omni.master_model import OmniMaster, check_feasibility
+from sim_models.omni.slave import OmniSlave, clock_for_period_error
+from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
+
+__all__ = [
+    "RATES",
+    "SlaveResult",
+    "TwoNodeRun",
+    "at5_drift_reproduction",
+    "at6_sync_removes_drift",
+    "at9_four_slaves",
+    "at10_stress",
+    "at13_sync_step",
+    "delivery_latency_ps",
+    "evaluate_slave",
+    "k_max",
+    "n_drift_model",
+    "run_two_node",
+    "sweep",
+]
+
+#: bit rates of the thesis' experiments (kbit/s x 1000)
+RATES = (100_000, 125_000, 250_000, 500_000, 1_000_000)
+#: the thesis' measured drift (0.72 ms in 199 ms) as a period error
+THESIS_RHO_PPM = 3618.0
+#: the thesis' measured slave post-processing time (Table 2-1)
+THESIS_T_POST_PS = 88_800_000
+
+
+# ==========================================================================================
+# model formulas
+# ==========================================================================================
+
+
+def delivery_latency_ps(bitrate_bps: int, msg: Any, t_post_ps: int = 0) -> int:
+    """SOF to the receiver's timestamp: ``(frame bits - 3)`` bit times + ``T_post`` (true ps,
+    transmitter and receiver at 0 ppm)."""
+    bus = CanBus(Scheduler(), bitrate_bps)
+    return bus.duration_ps(frame_length_bits(msg) - 3) + t_post_ps
+
+
+def n_drift_model(t_dif0_ps: float, rho_ppm: float, period_ps: int, d_ps: float) -> int:
+    """Index of the first free-running dropout (digest §3.2, AT-5): a lagging slave (ρ > 0)
+    drops once ``t_dif(n) >= T_s + D`` (the next command already overwrote this one), a
+    leading slave (ρ < 0) once ``t_dif(n) <= D`` (the command is not there yet)."""
+    step = rho_ppm * 1e-6 * period_ps
+    if step > 0:
+        return max(0, math.ceil((period_ps + d_ps - t_dif0_ps) / step))
+    if step < 0:
+        return max(0, math.ceil((t_dif0_ps - d_ps) / -step))
+    raise ValueError("no drift, no onset")
+
+
+def k_max(period_ps: int, d_ps: int, margin_ps: int, rho_ppm: float) -> int:
+    """Largest re-phase interval K with ``K·|ρ|·T_s <= T_s - D - margin`` (AT-10)."""
+    return max(1, int((period_ps - d_ps - margin_ps) / (abs(rho_ppm) * 1e-6 * period_ps)))
+
+
+# ==========================================================================================
+# evaluation of one slave
+# ==========================================================================================
+
+
+@dataclass
+class SlaveResult:
+    """Measured figures of one slave (times in ps)."""
+
+    name: str
+    rho_ppm: float
+    n: int  #: samples counted (expected cycle in 0 .. n_cycles - 1)
+    n_dropout: int
+    p_pct: float  #: Eq 2-2
+    n_drift: int  #: Eq 2-3: N - N_dropout
+    onset: int | None  #: index of the first dropout sample
+    offsets_ps: list[int] = field(repr=False)  #: t_dif(n) = s_n - m_n for every sample n
+    nominal_latency_ps: int = 0  #: D_i of the skew definition
+    skew_max_ps: int = 0  #: max_n |s_n - (m_n + D_i)|
+    rephases: int = 0
+
+    def summary(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("offsets_ps")
+        return d
+
+
+def evaluate_slave(slave: OmniSlave, master: OmniMaster, n_cycles: int, rho_ppm: float,
+                   nominal_latency_ps: int = 0) -> SlaveResult:
+    """Dropout (Eq 2-2, 2-3) over the samples whose command cycle was sent, and the offsets
+    ``s_n - m_n`` of the samples whose own cycle exists."""
+    cycles = dict(master.cycle_log)
+    counted = [t for t in slave.control_log
+               if t.dropout is not None and t.expected_cycle < n_cycles]
+    drops = [t for t in counted if t.dropout]
+    offsets = [t.t_ps - cycles[t.tick] for t in slave.control_log if t.tick in cycles]
+    n = len(counted)
+    skew = max((abs(o - nominal_latency_ps) for o in offsets), default=0)
+    return SlaveResult(slave.name, rho_ppm, n, len(drops), 100.0 * len(drops) / n if n else 0.0,
+                       n - len(drops), drops[0].tick if drops else None, offsets,
+                       nominal_latency_ps, skew, len(slave.rephase_log))
+
+
+# ==========================================================================================
+# two-node experiment (thesis Ch.2 / Ch.3): one master, one slave, no feedback
+# ==========================================================================================
+
+
+@dataclass
+class TwoNodeRun:
+    """One two-node run and what the models predict for it."""
+
+    bitrate_bps: int
+    dlc: int
+    period_ps: int
+    rho_ppm: float
+    resync: str
+    k: int
+    n_cycles: int
+    feasible: bool
+    reason: str
+    result: SlaveResult
+    d_min_ps: int  #: min / max delivery latency of the commands actually sent
+    d_max_ps: int
+    t_dif0_ps: int | None  #: measured offset of sample 0
+    master: OmniMaster = field(repr=False)
+    slave: OmniSlave = field(repr=False)
+    bus: CanBus = field(repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        return {"bitrate_bps": self.bitrate_bps, "dlc": self.dlc, "period_ps": self.period_ps,
+                "rho_ppm": self.rho_ppm, "resync": self.resync, "k": self.k,
+                "n_cycles": self.n_cycles, "feasible": self.feasible, "reason": self.reason,
+                "d_min_ps": self.d_min_ps, "d_max_ps": self.d_max_ps,
+                "t_dif0_ps": self.t_dif0_ps, "sample_phase_ps": self.slave.sample_phase_ps,
+                "aborted": len(self.master.aborted_log), **self.result.summary()}
+
+
+def run_two_node(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float, n_cycles: int,
+                 *, resync: str = "none", k: int = 10, sample_phase_ps: int = 0,
+                 initial_offset_ps: int | None = None, t_post_ps: int = 0,
+                 allow_infeasible: bool = True, late_frames: dict[int, int] | None = None
+                 ) -> TwoNodeRun:
+    """Master (0 ppm, node 0x02) + one slave (node 0x04, axis 1, period error ``rho_ppm``).
+
+    The command is an fc 001 broadcast of ``dlc`` bytes (sender byte + ``dlc - 1`` slots).
+    ``initial_offset_ps`` places the slave's free-running sample 0 at ``m_0 + offset`` (it is
+    ignored in thesis mode, where sample 0 is the first command). ``late_frames`` maps a cycle
+    index to an extra delay of that cycle's command (fault injection for the checkers)."""
+    if dlc < 2:
+        raise ValueError("the command needs a sender byte and at least one slot (DLC >= 2)")
+    sched = Scheduler()
+    bus = CanBus(sched, bitrate_bps)
+    sync_every = k if resync == "sync_frame" else 0
+    master = OmniMaster(sched, bitrate_bps=bitrate_bps, period_ps=period_ps, n_axes=dlc - 1,
+                        sync_every=sync_every, n_cycles=n_cycles,
+                        allow_infeasible=allow_infeasible)
+    bus.attach(master)
+    clock = clock_for_period_error(rho_ppm)
+    start_delay = None
+    if initial_offset_ps is not None:
+        d_nmt = delivery_latency_ps(bitrate_bps, oc.nmt_frame(0, oc.NMT_START), t_post_ps)
+        true_delay = period_ps + initial_offset_ps - d_nmt
+        if true_delay < 0:
+            raise ValueError("initial offset earlier than the NMT start reception")
+        start_delay = round(true_delay * clock.scale)
+    slave = OmniSlave(sched, 0x04, bitrate_bps=bitrate_bps, period_ps=period_ps, clock=clock,
+                      feedback=False, resync=resync, resync_k=k,
+                      sample_phase_ps=sample_phase_ps, start_delay_ps=start_delay,
+                      t_post_ps=t_post_ps)
+    bus.attach(slave)
+    if late_frames:
+        _inject_late_commands(master, late_frames)
+    master.start()
+    sched.run_until(period_ps * (n_cycles + 3))
+    sent = [(t, m) for t, m in master.tx_log if m.arbitration_id == master.command_frame(0)
+            .arbitration_id]
+    lat = [delivery_latency_ps(bitrate_bps, m, t_post_ps) for _, m in sent]
+    res = evaluate_slave(slave, master, n_cycles, rho_ppm)
+    return TwoNodeRun(bitrate_bps, dlc, period_ps, rho_ppm, resync, k, n_cycles,
+                      master.feasibility.ok, master.feasibility.reason, res,
+                      min(lat) if lat else 0, max(lat) if lat else 0,
+                      res.offsets_ps[0] if res.offsets_ps else None, master, slave, bus)
+
+
+def _inject_late_commands(master: OmniMaster, late: dict[int, int]) -> None:
+    """Delay the command of the given cycles by the given ps (checker self-test)."""
+    original = master._on_cycle
+
+    def patched(c: int) -> None:
+        if c in late and (master.n_cycles is None or c < master.n_cycles):
+            master.cycle_log.append((c, master.sched.now_ps))
+            frame = master.command_frame(c)
+            master.sched.call_later(late[c], master.queue_frame, frame)
+            return
+        original(c)
+
+    master._cycle_timer.fn = patched
+
+
+# ==========================================================================================
+# AT-5: drift reproduction without sync
+# ==========================================================================================
+
+
+def at5_drift_reproduction(n_cycles: int = 1000) -> dict[str, Any]:
+    """T_s 5 ms, ρ = +3618 ppm, t_dif(0) = 1.74 ms, 1 Mbit/s, 2-byte command, no sync."""
+    period = 5 * PS_PER_MS
+    run = run_two_node(1_000_000, 2, period, THESIS_RHO_PPM, n_cycles,
+                       initial_offset_ps=1_740 * PS_PER_US)
+    off = run.result.offsets_ps
+    d_mean = (run.d_min_ps + run.d_max_ps) / 2
+    model_onset = n_drift_model(off[0], THESIS_RHO_PPM, period, d_mean)
+    return {
+        "t_dif0_ms": off[0] / PS_PER_MS,
+        "offset_after_40_ms": off[40] / PS_PER_MS,
+        "offset_after_40_model_ms": (off[0] + 40 * THESIS_RHO_PPM * 1e-6 * period) / PS_PER_MS,
+        "n_drift_model": model_onset,
+        "n_drift_model_bounds": (n_drift_model(off[0], THESIS_RHO_PPM, period, run.d_min_ps),
+                                 n_drift_model(off[0], THESIS_RHO_PPM, period, run.d_max_ps)),
+        "onset_measured": run.result.onset,
+        "n_drift_eq23": run.result.n_drift,
+        "n": run.result.n,
+        "p_pct": run.result.p_pct,
+        "p_model_pct": 100.0 * (run.result.n - model_onset) / run.result.n,
+        "offsets_ps": off,
+        "run": run,
+    }
+
+
+# ==========================================================================================
+# AT-6 / AT-7 / AT-8: sync removes drift-induced loss; bit-rate x length sweeps
+# ==========================================================================================
+
+
+def at6_sync_removes_drift(dlc: int, n_cycles: int = 3000, k: int = 10,
+                           bitrate_bps: int = 1_000_000, period_ps: int = 5 * PS_PER_MS,
+                           sample_phase_ps: int = 0) -> dict[str, Any]:
+    """AT-5 plus the thesis re-phase every K samples; offset band model
+    ``[D_min, D_max + K·ρ·T_s + 1 τ_bit]``."""
+    run = run_two_node(bitrate_bps, dlc, period_ps, THESIS_RHO_PPM, n_cycles, resync="thesis",
+                       k=k, sample_phase_ps=sample_phase_ps)
+    tau = 10**12 // bitrate_bps
+    lo = run.d_min_ps + sample_phase_ps
+    hi = run.d_max_ps + sample_phase_ps + int(k * THESIS_RHO_PPM * 1e-6 * period_ps) + tau
+    off = run.result.offsets_ps
+    return {"dlc": dlc, "p_pct": run.result.p_pct, "n": run.result.n,
+            "n_dropout": run.result.n_dropout, "offset_min_ps": min(off),
+            "offset_max_ps": max(off), "band_model_ps": (lo, hi),
+            "first_k_max_ps": max(off[:k]), "last_k_max_ps": max(off[-k:]), "run": run}
+
+
+def stuff_jitter_ps(bitrate_bps: int, dlc: int) -> int:
+    """Upper bound of the difference in length between two command frames of ``dlc`` bytes:
+    the worst-case number of stuff bits, ``floor((34 + 8n - 1) / 4)`` bit times."""
+    return (worst_case_bits(dlc) - (47 + 8 * dlc)) * 10**12 // bitrate_bps
+
+
+def default_k(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float,
+              sample_phase_ps: int = 0, t_post_ps: int = 0) -> int:
+    """K of the sweeps: :func:`k_max` with the worst-case command latency, the sample phase
+    and a 10 % margin."""
+    feas = check_feasibility(bitrate_bps, dlc, period_ps)
+    d = feas.cmd_wc_ps + t_post_ps + sample_phase_ps
+    return k_max(period_ps, d, feas.margin_ps, rho_ppm)
+
+
+def sweep(period_ps: int, *, rates: tuple[int, ...] = RATES,
+          dlcs: tuple[int, ...] = tuple(range(2, 9)), n_cycles: int = 3000,
+          sync: bool = True, rho_ppm: float = THESIS_RHO_PPM,
+          initial_offset_fraction: float = 0.348, jitter_phase: bool = True
+          ) -> list[dict[str, Any]]:
+    """Bit rate x data length, two nodes, slave period error ``rho_ppm``.
+
+    Without sync the slave free-runs from ``t_dif(0) = 0.348·T_s`` (the thesis' 1.74 ms at
+    5 ms). With sync it uses the thesis re-phase with K = :func:`default_k` (at least 1) and,
+    with ``jitter_phase``, samples :func:`stuff_jitter_ps` after the reference reception (with
+    φ = 0, the thesis' own choice, a next command with more stuff bits than the reference can
+    arrive after the first sample: the knife edge described in docs/omni_drift.md).
+    Infeasible cells (AT-8) are still run (``allow_infeasible``) and flagged."""
+    cells = []
+    for rate in rates:
+        for dlc in dlcs:
+            if sync:
+                phase = stuff_jitter_ps(rate, dlc) if jitter_phase else 0
+                k = default_k(rate, dlc, period_ps, rho_ppm, phase)
+                run = run_two_node(rate, dlc, period_ps, rho_ppm, n_cycles, resync="thesis",
+                                   k=k, sample_phase_ps=phase)
+            else:
+                run = run_two_node(rate, dlc, period_ps, rho_ppm, n_cycles,
+                                   initial_offset_ps=int(initial_offset_fraction * period_ps))
+            cells.append(run.summary())
+    return cells
+
+
+# ==========================================================================================
+# AT-9: four slaves with realistic crystals
+# ==========================================================================================
+
+
+def at9_four_slaves(n_cycles: int = 10_000, *, sync: bool = True, k: int = 100,
+                    rhos: tuple[float, ...] = (-100.0, -50.0, 50.0, 100.0),
+                    bitrate_bps: int = 1_000_000, period_ps: int = PS_PER_MS,
+                    feedback: bool = True) -> dict[str, Any]:
+    """Thesis' node ids 0x04..0x20 at period errors ``rhos``, 4-axis fc 001 broadcast, Omni
+    SYNC every K cycles (option ii) or none. Skew definitions (docs/omni_drift.md):
+
+    * per-slave skew: ``max_n |s_n - (m_n + D_i)|`` with D_i the SYNC delivery latency (the
+      slave's nominal sample instant after a re-phase, T_post = 0, φ = 0); without sync D_i is
+      the NMT-start latency (the free-running grid is anchored there);
+    * inter-slave sample skew: ``max_n (max_i s_{i,n} - min_i s_{i,n})``."""
+    sched = Scheduler()
+    bus = CanBus(sched, bitrate_bps)
+    master = OmniMaster(sched, bitrate_bps=bitrate_bps, period_ps=period_ps, n_axes=4,
+                        sync_every=k if sync else 0, n_cycles=n_cycles)
+    bus.attach(master)
+    slaves = []
+    for node, rho in zip(oc.THESIS_SLAVE_IDS, rhos):
+        s = OmniSlave(sched, node, bitrate_bps=bitrate_bps, period_ps=period_ps,
+                      clock=clock_for_period_error(rho), feedback=feedback,
+                      resync="sync_frame")
+        bus.attach(s)
+        slaves.append(s)
+    master.start()
+    sched.run_until(period_ps * (n_cycles + 3))
+    ref = oc.omni_sync_frame() if sync else oc.nmt_frame(0, oc.NMT_START)
+    d_nom = delivery_latency_ps(bitrate_bps, ref)
+    results = [evaluate_slave(s, master, n_cycles, rho, d_nom) for s, rho in zip(slaves, rhos)]
+    cycles = dict(master.cycle_log)
+    by_tick: dict[int, list[int]] = {}
+    for s in slaves:
+        for t in s.control_log:
+            if t.tick in cycles:
+                by_tick.setdefault(t.tick, []).append(t.t_ps)
+    inter = [max(v) - min(v) for v in by_tick.values() if len(v) == len(slaves)]
+    n_all = sum(r.n for r in results)
+    drops = sum(r.n_dropout for r in results)
+    tau = 10**12 // bitrate_bps
+    return {
+        "sync": sync, "k": k, "n_cycles": n_cycles, "nominal_latency_ps": d_nom,
+        "slaves": results,
+        "skew_max_ps": max(r.skew_max_ps for r in results),
+        "inter_slave_skew_max_ps": max(inter),
+        "inter_slave_skew_ps": inter,
+        "dropout_pct": 100.0 * drops / n_all,
+        "bound_per_slave_ps": {r.name: int(abs(r.rho_ppm) * 1e-6 * k * period_ps) + 2 * tau
+                               for r in results},
+        "bound_inter_ps": int((max(rhos) - min(rhos)) * 1e-6 * k * period_ps) + 2 * tau,
+        "bus_load": bus.load(0, period_ps * (n_cycles + 1)),
+        "master": master, "slave_models": slaves,
+    }
+
+
+# ==========================================================================================
+# AT-10: stress drift ±3618 ppm at 1 ms
+# ==========================================================================================
+
+
+def at10_stress(rho_ppm: float, *, sync: bool, n_cycles: int = 2000,
+                t_post_ps: int = THESIS_T_POST_PS) -> dict[str, Any]:
+    """T_s 1 ms, 2-byte command, 1 Mbit/s, T_post = 88.8 µs (Table 2-1).
+
+    With sync: thesis re-phase, K = :func:`k_max` with the measured D and a 0.1 ms margin. A
+    lagging slave (ρ > 0) samples at the reception (φ = 0, the thesis); a leading slave
+    (ρ < 0) samples φ = T_s - D - margin/2 after it: half the margin before the next command,
+    and its drift has the room ``T_s - D - margin`` (the same K) plus the other half.
+    Without sync: free-running from t_dif(0) = T_s / 2, onset checked against the model."""
+    period = PS_PER_MS
+    margin = 100 * PS_PER_US
+    d_probe = run_two_node(1_000_000, 2, period, rho_ppm, 4, t_post_ps=t_post_ps)
+    d = d_probe.d_max_ps
+    if sync:
+        k = k_max(period, d, margin, rho_ppm)
+        phase = 0 if rho_ppm > 0 else period - d - margin // 2
+        run = run_two_node(1_000_000, 2, period, rho_ppm, n_cycles, resync="thesis", k=k,
+                           sample_phase_ps=phase, t_post_ps=t_post_ps)
+        return {"rho_ppm": rho_ppm, "sync": True, "k": k, "phase_ps": phase, "d_ps": d,
+                "p_pct": run.result.p_pct, "n": run.result.n, "run": run}
+    run = run_two_node(1_000_000, 2, period, rho_ppm, n_cycles, initial_offset_ps=period // 2,
+                       t_post_ps=t_post_ps)
+    off0 = run.result.offsets_ps[0]
+    return {"rho_ppm": rho_ppm, "sync": False, "d_ps": d, "t_dif0_ps": off0,
+            "onset_measured": run.result.onset,
+            "n_drift_model": n_drift_model(off0, rho_ppm, period,
+                                           (run.d_min_ps + run.d_max_ps) / 2),
+            "n_drift_eq23": run.result.n_drift, "p_pct": run.result.p_pct,
+            "n": run.result.n, "run": run}
+
+
+# ==========================================================================================
+# AT-13: the period shortened by a hard re-phase
+# ==========================================================================================
+
+
+def at13_sync_step(resync: str, rho_ppm: float, *, k: int = 10, n_cycles: int = 200,
+                   bitrate_bps: int = 1_000_000, period_ps: int = PS_PER_MS,
+                   dlc: int = 2) -> list[dict[str, int]]:
+    """For every re-phase interval but the first (start transient): the measured change of
+    the slave's period at the re-phase versus the accumulated drift since the previous one.
+
+    * period before the re-phased sample (true ps): ``s_r - s_{r-1}``; deviation from the
+      free-running slave period ``T_slave = T_s·(1 + ρ)``: ``T_slave - (s_r - s_{r-1})``
+      (positive = shortened);
+    * accumulated drift (model): ``j·(T_slave - T_s) - (D_r - D_prev)`` with j the samples
+      since the previous re-phase and D the reference frames' delivery latencies (constant
+      for the Omni SYNC, content-dependent for the thesis' command frames)."""
+    run = run_two_node(bitrate_bps, dlc, period_ps, rho_ppm, n_cycles, resync=resync, k=k)
+    slave, master = run.slave, run.master
+    t_slave = slave.clock.true_ps(slave.clock.local_ps(0) + period_ps)
+    d_sync = delivery_latency_ps(bitrate_bps, oc.omni_sync_frame())
+
+    def ref_latency(n: int) -> int:  # reference frame of the re-phased sample n
+        if resync == "thesis":
+            return delivery_latency_ps(bitrate_bps, master.command_frame(n))
+        return d_sync
+
+    out = []
+    log = slave.control_log
+    prev: int | None = None
+    seen = 0
+    for i, tick in enumerate(log):
+        if not tick.rephase:
+            continue
+        seen += 1
+        if seen >= 3 and prev is not None:  # from the 2nd interval on (no start transient)
+            j = i - prev
+            period_before = tick.t_ps - log[i - 1].t_ps
+            model = j * (t_slave - period_ps) - (ref_latency(tick.tick)
+                                                 - ref_latency(log[prev].tick))
+            out.append({"sample": tick.tick, "j": j, "period_before_ps": period_before,
+                        "shortening_ps": t_slave - period_before, "model_ps": model})
+        prev = i
+    return out
