@@ -34,9 +34,9 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.canopen_regs_pkg.all;
-    use canopen_master.canopen_util_pkg.all;
+library work;
+    use work.canopen_regs_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity canopen_host_regs is
     generic (

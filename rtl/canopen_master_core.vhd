@@ -29,9 +29,9 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.canopen_pkg.all;
-    use canopen_master.canopen_master_pkg.all;
+library work;
+    use work.canopen_pkg.all;
+    use work.canopen_master_pkg.all;
 
 entity canopen_master_core is
     generic (
@@ -792,7 +792,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- The FSM
     -- ---------------------------------------------------------------------------------------------
-    fsm_inst : entity canopen_master.canopen_master_fsm
+    fsm_inst : entity work.canopen_master_fsm
         port map (
             clk_i          => clk_i,
             rst_n_i        => rst_n_i,
@@ -842,7 +842,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Services
     -- ---------------------------------------------------------------------------------------------
-    sdo_inst : entity canopen_master.canopen_sdo_client
+    sdo_inst : entity work.canopen_sdo_client
         generic map (
             BUF_BYTES => SDO_BUF_BYTES
         )
@@ -884,7 +884,7 @@ begin
             state_o         => open
         );
 
-    monitor_inst : entity canopen_master.canopen_node_monitor
+    monitor_inst : entity work.canopen_node_monitor
         generic map (
             MAX_NODES  => MAX_NODES,
             EMCY_DEPTH => EMCY_DEPTH
@@ -935,7 +935,7 @@ begin
             rx_malformed_o      => mon_rx_malformed
         );
 
-    pdo_inst : entity canopen_master.canopen_pdo_engine
+    pdo_inst : entity work.canopen_pdo_engine
         generic map (
             N_TPDO => N_TPDO,
             N_RPDO => N_RPDO
@@ -1015,7 +1015,7 @@ begin
     cli_buf_wdata <= acfg_buf_wdata when acfg_run = '1' else
                      sdo_buf_wdata;
 
-    acfg_inst : entity canopen_master.canopen_autoconfig
+    acfg_inst : entity work.canopen_autoconfig
         generic map (
             CFG_DEPTH => CFG_DEPTH
         )
@@ -1057,7 +1057,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Host registers
     -- ---------------------------------------------------------------------------------------------
-    regs_inst : entity canopen_master.canopen_host_regs
+    regs_inst : entity work.canopen_host_regs
         generic map (
             MAX_NODES => MAX_NODES
         )

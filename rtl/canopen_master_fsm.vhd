@@ -23,8 +23,8 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.canopen_master_pkg.all;
+library work;
+    use work.canopen_master_pkg.all;
 
 entity canopen_master_fsm is
     port (

@@ -15,7 +15,7 @@
 library ieee;
     use ieee.std_logic_1164.all;
 
-library canopen_master;
+library work;
 
 entity canopen_master_top is
     generic (
@@ -121,7 +121,7 @@ begin
 
     rst_n <= rst_sync(1);
 
-    core_inst : entity canopen_master.canopen_master_core
+    core_inst : entity work.canopen_master_core
         generic map (
             CLK_FREQ_HZ => CLK_FREQ_HZ,
             MAX_NODES   => MAX_NODES,
@@ -179,7 +179,7 @@ begin
             ctl_rx_overflow_i   => rx_overflow
         );
 
-    ctrl_inst : entity canopen_master.mcp2510_ctrl
+    ctrl_inst : entity work.mcp2510_ctrl
         generic map (
             CLK_FREQ_HZ     => CLK_FREQ_HZ,
             SPI_SCLK_HZ     => SPI_SCLK_HZ,

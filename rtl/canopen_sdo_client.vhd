@@ -34,8 +34,8 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.canopen_pkg.all;
+library work;
+    use work.canopen_pkg.all;
 
 entity canopen_sdo_client is
     generic (

@@ -34,8 +34,8 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.mcp2510_pkg.all;
+library work;
+    use work.mcp2510_pkg.all;
 
 entity mcp2510_ctrl is
     generic (
@@ -1340,7 +1340,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Instruction executor + SPI engine
     -- ---------------------------------------------------------------------------------------------
-    instr_inst : entity canopen_master.mcp2510_instr
+    instr_inst : entity work.mcp2510_instr
         generic map (
             CLK_FREQ_HZ   => CLK_FREQ_HZ,
             SPI_SCLK_HZ   => SPI_SCLK_HZ,

@@ -23,8 +23,8 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
-library canopen_master;
-    use canopen_master.mcp2510_pkg.all;
+library work;
+    use work.mcp2510_pkg.all;
 
 entity mcp2510_instr is
     generic (
@@ -238,7 +238,7 @@ begin
     cmd_ready_o <= not active;
 
     -- SPI engine --------------------------------------------------------------------------------
-    spi_inst : entity canopen_master.mcp2510_spi_master
+    spi_inst : entity work.mcp2510_spi_master
         generic map (
             CLK_FREQ_HZ   => CLK_FREQ_HZ,
             SPI_SCLK_HZ   => SPI_SCLK_HZ,

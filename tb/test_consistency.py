@@ -6,7 +6,7 @@
   source of truth by test). A VHDL constant without a counterpart in ``regs.py`` fails.
 * The package must not define any MCP2515-only instruction (the MCP2510 does not have them).
 * ``rtl/files.f`` (the compile order every flow reads) lists every ``rtl/*.vhd`` exactly once,
-  packages come first, and a file that references ``canopen_master.<name>`` (a package or an
+  packages come first, and a file that references ``work.<name>`` (a package or an
   entity) comes after the file declaring ``<name>``.
 
 Each check is a function returning its findings; the ``*_can_fail`` tests feed it doctored
@@ -45,7 +45,8 @@ MCP2510_INSTRUCTIONS = {"INSTR_RESET", "INSTR_READ", "INSTR_WRITE", "INSTR_RTS",
                         "INSTR_READ_STATUS", "INSTR_BIT_MODIFY"}
 
 _DECL_RE = re.compile(r"^\s*(package|entity)\s+(\w+)\s+is\b", re.IGNORECASE | re.MULTILINE)
-_USE_RE = re.compile(r"\bcanopen_master\s*\.\s*(\w+)", re.IGNORECASE)
+#: a use of another unit of the library: ``use work.x_pkg.all`` or ``entity work.x``
+_USE_RE = re.compile(r"\bwork\s*\.\s*(\w+)", re.IGNORECASE)
 
 
 def _strip_comment(line: str) -> str:
@@ -111,7 +112,7 @@ def files_f_listing_problems(files_f: Path = FILES_F, rtl_dir: Path = RTL_DIR) -
 
 
 def compile_order_problems(files_f: Path = FILES_F) -> list[str]:
-    """Uses of ``canopen_master.<name>`` before the file declaring it; packages after a file
+    """Uses of ``work.<name>`` before the file declaring it; packages after a file
     that declares no package."""
     order = rtl_sources(files_f)
     declared_in: dict[str, int] = {}
@@ -126,9 +127,9 @@ def compile_order_problems(files_f: Path = FILES_F) -> list[str]:
         for name in sorted({n.lower() for n in _USE_RE.findall(_vhdl_text(path))}):
             j = declared_in.get(name)
             if j is None:
-                problems.append(f"{path.name} uses canopen_master.{name}, declared in no file")
+                problems.append(f"{path.name} uses work.{name}, declared in no file")
             elif j > i:
-                problems.append(f"{path.name} (entry {i + 1}) uses canopen_master.{name}, "
+                problems.append(f"{path.name} (entry {i + 1}) uses work.{name}, "
                                 f"declared later in {order[j].name} (entry {j + 1})")
     first_other = next((i for i, pkg in enumerate(has_package) if not pkg), len(order))
     problems += [f"package file {order[i].name} after {order[first_other].name}"
@@ -196,7 +197,7 @@ def test_files_f_lists_every_rtl_file_once():
 
 
 def test_files_f_declares_before_use():
-    """A file using ``canopen_master.<name>`` (package or entity) comes after its declaration,
+    """A file using ``work.<name>`` (package or entity) comes after its declaration,
     and package files come first."""
     problems = compile_order_problems()
     assert not problems, "compile order in rtl/files.f:\n" + "\n".join(problems)
@@ -208,7 +209,7 @@ def test_files_f_checks_can_fail(tmp_path):
     rev = tmp_path / "reversed.f"
     rev.write_text("\n".join(str(p) for p in reversed(order)) + "\n")
     problems = compile_order_problems(rev)
-    assert any("uses canopen_master.mcp2510_pkg, declared later" in p for p in problems), problems
+    assert any("uses work.mcp2510_pkg, declared later" in p for p in problems), problems
     assert any(p.startswith("package file mcp2510_pkg.vhd after") for p in problems), problems
     bad = tmp_path / "bad.f"
     bad.write_text("\n".join(str(p) for p in [order[0], order[0], *order[2:]])
