@@ -59,6 +59,7 @@ entity canopen_host_regs is
         irq_o : out   std_logic; -- level high: OR(IRQ_STATUS and IRQ_ENABLE)
         -- master control and SYNC configuration
         sync_en_o        : out   std_logic;                     -- CTRL.SYNC_EN
+        omni_en_o        : out   std_logic;                     -- CTRL.OMNI: Omni-ID mode
         reinit_o         : out   std_logic;                     -- pulse: CTRL.REINIT
         nmt_req_o        : out   std_logic;                     -- pulse: NMT_CMD written
         nmt_cs_o         : out   std_logic_vector(7 downto 0);  -- NMT command specifier
@@ -274,6 +275,7 @@ architecture rtl of canopen_host_regs is
 
     -- RW registers
     signal sync_en        : std_logic;
+    signal omni_en        : std_logic;
     signal irq_enable     : std_logic_vector(irq_bits_c - 1 downto 0);
     signal sync_period    : std_logic_vector(31 downto 0);
     signal sync_overflow  : std_logic_vector(7 downto 0);
@@ -349,6 +351,7 @@ begin
 
         if rst_n_i = '0' then
             sync_en        <= '0';
+            omni_en        <= '0';
             irq_enable     <= (others => '0');
             irq_status     <= (others => '0');
             sync_period    <= (others => '0');
@@ -419,6 +422,7 @@ begin
             if avs_write_i = '1' then
                 if addr_is(avs_address_i, REG_CTRL_C) then
                     sync_en  <= wr_merge(CTRL_SYNC_EN_C);
+                    omni_en  <= wr_merge(CTRL_OMNI_C);
                     reinit_o <= wr_ones(CTRL_REINIT_C);
                 end if;
                 if addr_is(avs_address_i, REG_IRQ_ENABLE_C) then
@@ -602,7 +606,7 @@ begin
 
         put(REG_ID_C, ID_RESET_C);
         put(REG_VERSION_C, VERSION_RESET_C);
-        put(REG_CTRL_C, at(sync_en, CTRL_SYNC_EN_C));
+        put(REG_CTRL_C, at(sync_en, CTRL_SYNC_EN_C) or at(omni_en, CTRL_OMNI_C));
         put(REG_STATUS_C,
             at(fsm_state_i, STATUS_FSM_STATE_HI_C, STATUS_FSM_STATE_LO_C)
             or at(init_done_i, STATUS_INIT_DONE_C) or at(init_fail_i, STATUS_INIT_FAIL_C)
@@ -760,6 +764,7 @@ begin
     end generate slot_out_gen;
 
     sync_en_o                <= sync_en;
+    omni_en_o                <= omni_en;
     sync_period_us_o         <= sync_period;
     sync_overflow_o          <= sync_overflow;
     sync_window_us_o         <= sync_window;

@@ -12,7 +12,7 @@
 --     computed here; every action it asks for (its Moore state outputs) is carried out here.
 --   * canopen_sdo_client (St6/St9), canopen_node_monitor (St7/St10: heartbeat, guarding,
 --     boot-up, EMCY), canopen_autoconfig (the SDO configuration list; owns the SDO client while
---     it runs, its NMT starts wait in their own register and go out in St8).
+--     it runs, its NMT starts wait in their own register and go out in St10).
 --   * Datapath (this file): timebase (us/ms), SYNC producer, Receive_Data register and COB-ID
 --     classifier (St3/St4), generation-source selection and Transmit_Data with the TX buffer
 --     plan (St8..St11), the controller request (St12), error latch (St13), state watchdog
@@ -42,6 +42,7 @@ entity canopen_master_core is
         N_TPDO            : positive range 1 to 32  := 8;          -- PDO channels sent
         N_RPDO            : positive range 1 to 32  := 8;          -- PDO channels received
         CFG_DEPTH         : positive range 2 to 256 := 64;         -- configuration list entries
+        CAN_BITRATE_BPS   : positive                := 1_000_000;  -- for Omni-ID feasibility
         WATCHDOG_US       : positive                := 20_000;     -- longest wait in one state
         REINIT_BACKOFF_MS : positive                := 100;        -- between init attempts
         STATUS_POLL_MS    : positive                := 10          -- TEC/REC/EFLG refresh period
@@ -356,6 +357,37 @@ architecture rtl of canopen_master_core is
     signal pdo_rx_done   : std_logic;
     signal pdo_rx_reply  : std_logic;
     signal pdo_rx_unexp  : std_logic;
+    -- the PDO engine's own outputs (pdo_* above are the active protocol engine's)
+    signal pe_reg_rdata : std_logic_vector(31 downto 0);
+    signal pe_tx_req    : std_logic;
+    signal pe_tx_id     : std_logic_vector(10 downto 0);
+    signal pe_tx_rtr    : std_logic;
+    signal pe_tx_dlc    : std_logic_vector(3 downto 0);
+    signal pe_tx_data   : std_logic_vector(63 downto 0);
+    signal pe_rx_done   : std_logic;
+    signal pe_rx_reply  : std_logic;
+    signal pe_rx_unexp  : std_logic;
+
+    -- Omni-ID mode (CTRL.OMNI) and the Omni-ID engine
+    signal omni_en      : std_logic;
+    signal om_reg_rdata : std_logic_vector(31 downto 0);
+    signal om_tx_req    : std_logic;
+    signal om_tx_id     : std_logic_vector(10 downto 0);
+    signal om_tx_rtr    : std_logic;
+    signal om_tx_dlc    : std_logic_vector(3 downto 0);
+    signal om_tx_data   : std_logic_vector(63 downto 0);
+    signal om_rx_done   : std_logic;
+    signal om_rx_reply  : std_logic;
+    signal om_rx_unexp  : std_logic;
+    signal om_cyc_id    : std_logic_vector(10 downto 0);
+    signal om_cyc_dlc   : std_logic_vector(3 downto 0);
+    signal om_cyc_data  : std_logic_vector(63 downto 0);
+    signal om_cyc_take  : std_logic;
+    signal om_feasible  : std_logic;
+    signal om_ev        : std_logic;
+    -- Omni-ID: the cycle frame is preloaded in the second half of the period, so set-points
+    -- committed before the middle of a cycle go out at the next cycle instant
+    signal om_preload_ok : std_logic;
     signal enter_pdo     : std_logic;
     -- synchronous window (1007h semantics): open from each SYNC for SYNC_WINDOW_US, 0 = always
     signal window_us   : unsigned(31 downto 0);
@@ -419,11 +451,15 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- FSM conditions
     -- ---------------------------------------------------------------------------------------------
-    err_pending <= err_can or err_busoff or err_reinit or err_node;
-    sync_due    <= sync_en and (or sync_period_us) and not sync_loaded
-                   and not ctl_tx_pending_i(2);
+    err_pending   <= err_can or err_busoff or err_reinit or err_node;
+    sync_due      <= sync_en and (or sync_period_us) and not sync_loaded
+                     and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
+    om_preload_ok <= '1' when om_feasible = '1'
+                              and sync_timer >= shift_right(unsigned(sync_period_us), 1) else
+                     '0';
     -- a generation is only dispatched when its TX buffer is free
-    nmt_gen_req <= (nmt_pending or acfg_nmt_pending or mon_tx_req) and not ctl_tx_pending_i(1);
+    nmt_gen_req <= (nmt_pending or acfg_nmt_pending or (mon_tx_req and not omni_en))
+                   and not ctl_tx_pending_i(1);
     sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
     pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
 
@@ -442,7 +478,10 @@ begin
         cls_sdo <= '0';
         cls_nmt <= '0';
 
-        if node_id_ok(rx_frame.id) then
+        if omni_en = '1' then
+            -- Omni-ID mode: one protocol per bus, every frame goes to the Omni-ID engine (St5)
+            cls_pdo <= '1';
+        elsif node_id_ok(rx_frame.id) then
             -- slaves' TPDOs, and RTRs (or other masters' frames) on RPDO COB-IDs: the PDO
             -- engine matches them against its channels
             if fc = FC_TPDO1_C or fc = FC_TPDO2_C or fc = FC_TPDO3_C or fc = FC_TPDO4_C
@@ -462,7 +501,7 @@ begin
     -- St2, St8..St10: the selected source presents its frame
     frame_ready <= '1' when in_sync_gen = '1' else
                    '1' when in_nmt_gen = '1' and (nmt_pending = '1' or acfg_nmt_pending = '1'
-                                                     or mon_tx_req = '1') else
+                                                     or (mon_tx_req = '1' and omni_en = '0')) else
                    '1' when in_sdo_gen = '1' and sdo_tx_req = '1' else
                    '1' when in_pdo_gen = '1' and pdo_tx_req = '1' else
                    '0';
@@ -529,7 +568,7 @@ begin
             end if;
 
             -- host NMT command --------------------------------------------------------------
-            if nmt_req = '1' then
+            if nmt_req = '1' and omni_en = '0' then
                 nmt_pending  <= '1';
                 nmt_cmd_cs   <= nmt_cs;
                 nmt_cmd_node <= nmt_node;
@@ -567,7 +606,12 @@ begin
 
                         -- SYNC (COB-ID 080h), with the counter byte when 1019h is set
                         tx_frame.id <= COB_SYNC_C;
-                        if unsigned(sync_overflow) >= 2 then
+                        if omni_en = '1' then
+                            -- Omni-ID mode: the engine's cycle frame
+                            tx_frame.id   <= om_cyc_id;
+                            tx_frame.dlc  <= om_cyc_dlc;
+                            tx_frame.data <= om_cyc_data;
+                        elsif unsigned(sync_overflow) >= 2 then
                             tx_frame.dlc              <= x"1";
                             tx_frame.data(7 downto 0) <= std_logic_vector(sync_counter);
                         end if;
@@ -943,33 +987,98 @@ begin
         port map (
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
-            sync_i          => sync_fire,
+            sync_i          => sync_fire and not omni_en,
             sync_count_i    => std_logic_vector(sync_counter),
             window_open_i   => window_open,
             tick_us_i       => tick_us,
             reg_addr_i      => pdo_reg_addr,
-            reg_we_i        => pdo_reg_we,
+            reg_we_i        => pdo_reg_we and not omni_en,
             reg_wdata_i     => pdo_reg_wdata,
-            reg_rdata_o     => pdo_reg_rdata,
-            rx_valid_i      => enter_pdo,
+            reg_rdata_o     => pe_reg_rdata,
+            rx_valid_i      => enter_pdo and not omni_en,
             rx_id_i         => rx_frame.id,
             rx_rtr_i        => rx_frame.rtr,
             rx_dlc_i        => rx_frame.dlc,
             rx_data_i       => rx_frame.data,
-            rx_done_o       => pdo_rx_done,
-            rx_reply_o      => pdo_rx_reply,
-            rx_unexpected_o => pdo_rx_unexp,
-            tx_req_o        => pdo_tx_req,
-            tx_id_o         => pdo_tx_id,
-            tx_rtr_o        => pdo_tx_rtr,
-            tx_dlc_o        => pdo_tx_dlc,
-            tx_data_o       => pdo_tx_data,
-            tx_ack_i        => pdo_tx_ack,
+            rx_done_o       => pe_rx_done,
+            rx_reply_o      => pe_rx_reply,
+            rx_unexpected_o => pe_rx_unexp,
+            tx_req_o        => pe_tx_req,
+            tx_id_o         => pe_tx_id,
+            tx_rtr_o        => pe_tx_rtr,
+            tx_dlc_o        => pe_tx_dlc,
+            tx_data_o       => pe_tx_data,
+            tx_ack_i        => pdo_tx_ack and not omni_en,
             ev_rx_o         => open,
             ev_len_err_o    => open,
             ev_missed_o     => open,
             ev_late_o       => open
         );
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Omni-ID engine (CTRL.OMNI): NCTU Omni-ID protocol. It takes the PDO engine's place in St5 and
+    -- St8 and in the PDO_WIN window, and gives the SYNC producer its cycle frame (TXB2)
+    -- ---------------------------------------------------------------------------------------------
+    omni_inst : entity work.omni_engine
+        generic map (
+            BITRATE_BPS => CAN_BITRATE_BPS
+        )
+        port map (
+            clk_i           => clk_i,
+            rst_n_i         => rst_n_i,
+            enable_i        => omni_en,
+            tick_us_i       => tick_us,
+            period_us_i     => sync_period_us,
+            cycle_i         => sync_fire and omni_en,
+            cyc_id_o        => om_cyc_id,
+            cyc_dlc_o       => om_cyc_dlc,
+            cyc_data_o      => om_cyc_data,
+            cyc_take_i      => om_cyc_take,
+            feasible_o      => om_feasible,
+            reg_addr_i      => pdo_reg_addr,
+            reg_we_i        => pdo_reg_we and omni_en,
+            reg_wdata_i     => pdo_reg_wdata,
+            reg_rdata_o     => om_reg_rdata,
+            rx_valid_i      => enter_pdo and omni_en,
+            rx_id_i         => rx_frame.id,
+            rx_rtr_i        => rx_frame.rtr,
+            rx_dlc_i        => rx_frame.dlc,
+            rx_data_i       => rx_frame.data,
+            rx_done_o       => om_rx_done,
+            rx_reply_o      => om_rx_reply,
+            rx_unexpected_o => om_rx_unexp,
+            tx_req_o        => om_tx_req,
+            tx_id_o         => om_tx_id,
+            tx_rtr_o        => om_tx_rtr,
+            tx_dlc_o        => om_tx_dlc,
+            tx_data_o       => om_tx_data,
+            tx_ack_i        => pdo_tx_ack and omni_en,
+            ev_o            => om_ev
+        );
+
+    -- the cycle frame is taken when St11 encapsulates the SYNC-source frame
+    om_cyc_take <= '1' when in_encap = '1' and gen_src = 0 and omni_en = '1' else
+                   '0';
+
+    -- the active protocol engine towards the FSM, the datapath and PDO_WIN
+    pdo_reg_rdata <= om_reg_rdata when omni_en = '1' else
+                     pe_reg_rdata;
+    pdo_tx_req    <= om_tx_req when omni_en = '1' else
+                     pe_tx_req;
+    pdo_tx_id     <= om_tx_id when omni_en = '1' else
+                     pe_tx_id;
+    pdo_tx_rtr    <= om_tx_rtr when omni_en = '1' else
+                     pe_tx_rtr;
+    pdo_tx_dlc    <= om_tx_dlc when omni_en = '1' else
+                     pe_tx_dlc;
+    pdo_tx_data   <= om_tx_data when omni_en = '1' else
+                     pe_tx_data;
+    pdo_rx_done   <= om_rx_done when omni_en = '1' else
+                     pe_rx_done;
+    pdo_rx_reply  <= om_rx_reply when omni_en = '1' else
+                     pe_rx_reply;
+    pdo_rx_unexp  <= om_rx_unexp when omni_en = '1' else
+                     pe_rx_unexp;
 
     -- ---------------------------------------------------------------------------------------------
     -- Automatic configuration: the SDO list run before NMT start (owns the SDO client while busy)
@@ -985,7 +1094,7 @@ begin
         if rst_n_i = '0' then
             acfg_start_pend <= '0';
         elsif rising_edge(clk_i) then
-            if acfg_start = '1' and acfg_busy = '0' then
+            if acfg_start = '1' and acfg_busy = '0' and omni_en = '0' then
                 acfg_start_pend <= '1';
             elsif sdo_busy = '0' and acfg_busy = '0' then
                 acfg_start_pend <= '0';
@@ -997,7 +1106,7 @@ begin
     acfg_run <= acfg_busy or acfg_start_pend;
 
     cli_req       <= acfg_sdo_req when acfg_run = '1' else
-                     sdo_req;
+                     sdo_req and not omni_en;
     cli_upload    <= '0' when acfg_run = '1' else
                      sdo_upload;
     cli_node      <= acfg_sdo_node when acfg_run = '1' else
@@ -1073,6 +1182,7 @@ begin
             avs_readdatavalid_o      => avs_readdatavalid_o,
             irq_o                    => irq_o,
             sync_en_o                => sync_en,
+            omni_en_o                => omni_en,
             reinit_o                 => host_reinit,
             nmt_req_o                => nmt_req,
             nmt_cs_o                 => nmt_cs,
@@ -1150,7 +1260,7 @@ begin
             acfg_fail_node_i         => acfg_fail_node,
             acfg_fail_entry_i        => acfg_fail_entry,
             acfg_fail_abort_i        => acfg_fail_abort,
-            ev_node_i                => ev_node_any,
+            ev_node_i                => ev_node_any or om_ev,
             ev_emcy_i                => ev_emcy,
             ev_sdo_done_i            => sdo_done and not acfg_run,
             ev_can_error_i           => ev_can_error,

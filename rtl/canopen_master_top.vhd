@@ -123,13 +123,14 @@ begin
 
     core_inst : entity work.canopen_master_core
         generic map (
-            CLK_FREQ_HZ => CLK_FREQ_HZ,
-            MAX_NODES   => MAX_NODES,
-            EMCY_DEPTH  => EMCY_DEPTH,
-            N_TPDO      => N_TPDO,
-            N_RPDO      => N_RPDO,
-            CFG_DEPTH   => CFG_DEPTH,
-            WATCHDOG_US => WATCHDOG_US
+            CLK_FREQ_HZ     => CLK_FREQ_HZ,
+            MAX_NODES       => MAX_NODES,
+            EMCY_DEPTH      => EMCY_DEPTH,
+            N_TPDO          => N_TPDO,
+            N_RPDO          => N_RPDO,
+            CFG_DEPTH       => CFG_DEPTH,
+            CAN_BITRATE_BPS => CAN_BITRATE_BPS,
+            WATCHDOG_US     => WATCHDOG_US
         )
         port map (
             clk_i               => clk_i,

@@ -10,8 +10,8 @@
 --   Word addresses REG_<NAME>_C, field positions <REG>_<FIELD>_HI_C/_LO_C (fields wider
 --   than one bit) or <REG>_<FIELD>_C (single bits) and reset words <REG>_RESET_C. The
 --   per-node registers REG_NODE_*_C are the addresses of slot 0; slot k adds
---   k * REG_NODE_STRIDE_C. REG_PDO_*_C lie inside the PDO engine's window. Tables:
---   docs/register_map.md.
+--   k * REG_NODE_STRIDE_C. REG_PDO_*_C lie inside the PDO engine's window, REG_OMNI_*_C
+--   inside the same window banked by CTRL.OMNI. Tables: docs/register_map.md.
 -- =================================================================================================
 
 library ieee;
@@ -116,6 +116,51 @@ package canopen_regs_pkg is
     constant REG_PDO_CNT_UNEXPECTED_C : natural := 16#D6#; -- RO
 
     -- ---------------------------------------------------------------------------------------------
+    -- Omni-ID engine bank of the same window (CTRL.OMNI = 1): passed through to
+    -- omni_engine, registers REG_OMNI_*_C (word offset = address - REG_OMNI_WIN_C)
+    -- ---------------------------------------------------------------------------------------------
+    constant REG_OMNI_WIN_C              : natural := 16#C0#; -- first word (= PDO_WIN)
+    constant REG_OMNI_WIN_WORDS_C        : natural := 64;     -- words
+    constant REG_OMNI_INFO_C             : natural := 16#C0#; -- RO: Omni-ID engine size
+    constant REG_OMNI_CFG_C              : natural := 16#C1#; -- RW
+    constant REG_OMNI_CTRL_C             : natural := 16#C2#; -- pulse: Omni-ID commands
+    constant REG_OMNI_STATUS_C           : natural := 16#C3#; -- RO: Omni-ID engine status
+    constant REG_OMNI_SYNC_K_C           : natural := 16#C4#; -- RW
+    constant REG_OMNI_POLL_C             : natural := 16#C5#; -- RW: node monitoring period
+    constant REG_OMNI_QUERY_WIN_C        : natural := 16#C6#; -- RW: node query reply window
+    constant REG_OMNI_CYCLE_C            : natural := 16#C7#; -- RO: cycle counter
+    constant REG_OMNI_SP01_C             : natural := 16#C8#; -- RW
+    constant REG_OMNI_SP23_C             : natural := 16#C9#; -- RW
+    constant REG_OMNI_SP45_C             : natural := 16#CA#; -- RW
+    constant REG_OMNI_SP67_C             : natural := 16#CB#; -- RW
+    constant REG_OMNI_NMT_C              : natural := 16#CC#; -- WO
+    constant REG_OMNI_PARAM_HDR_C        : natural := 16#CD#; -- RW
+    constant REG_OMNI_PARAM_LO_C         : natural := 16#CE#; -- RW
+    constant REG_OMNI_PARAM_HI_C         : natural := 16#CF#; -- RW: parameter frame bytes 6..7
+    constant REG_OMNI_SEL_C              : natural := 16#D0#; -- RW + pulse
+    constant REG_OMNI_SLOT_CFG_C         : natural := 16#D1#; -- RW
+    constant REG_OMNI_FB_LO_C            : natural := 16#D2#; -- RO
+    constant REG_OMNI_FB_HI_C            : natural := 16#D3#; -- RO
+    constant REG_OMNI_FB_INFO_C          : natural := 16#D4#; -- RO
+    constant REG_OMNI_SLOT_ERR_C         : natural := 16#D5#; -- RO
+    constant REG_OMNI_FB_NEW_C           : natural := 16#D6#; -- W1C: NEW flags of all slots
+    constant REG_OMNI_ALIVE_C            : natural := 16#D7#; -- RO: replies to the last node query
+    constant REG_OMNI_MISSING_C          : natural := 16#D8#; -- W1C
+    constant REG_OMNI_PMB_INFO_C         : natural := 16#D9#; -- RO + W1C
+    constant REG_OMNI_PMB_LO_C           : natural := 16#DA#; -- RO: parameter mailbox: bytes 2..5
+    constant REG_OMNI_PMB_HI_C           : natural := 16#DB#; -- RO: parameter mailbox: bytes 6..7
+    constant REG_OMNI_BUS_BITS_C         : natural := 16#DC#; -- RO
+    constant REG_OMNI_CNT_FB_RX_C        : natural := 16#E0#; -- RO
+    constant REG_OMNI_CNT_LEN_ERR_C      : natural := 16#E1#; -- RO
+    constant REG_OMNI_CNT_UNEXPECTED_C   : natural := 16#E2#; -- RO
+    constant REG_OMNI_CNT_MISSED_C       : natural := 16#E3#; -- RO
+    constant REG_OMNI_CNT_NODE_MISSING_C : natural := 16#E4#; -- RO
+    constant REG_OMNI_CNT_REFUSED_C      : natural := 16#E5#; -- RO
+    constant REG_OMNI_CNT_TX_C           : natural := 16#E6#; -- RO
+    constant REG_OMNI_CNT_LATE_C         : natural := 16#E7#; -- RO
+    constant REG_OMNI_CNT_PARAM_RX_C     : natural := 16#E8#; -- RO
+
+    -- ---------------------------------------------------------------------------------------------
     -- Fields
     -- ---------------------------------------------------------------------------------------------
 
@@ -131,6 +176,7 @@ package canopen_regs_pkg is
 
     -- CTRL
     constant CTRL_SYNC_EN_C      : natural := 0; -- RW
+    constant CTRL_OMNI_C         : natural := 1; -- RW
     constant CTRL_REINIT_C       : natural := 8; -- pulse
     constant CTRL_CLR_COUNTERS_C : natural := 9; -- pulse: write 1: clear every CNT_* register
 
@@ -470,6 +516,201 @@ package canopen_regs_pkg is
     constant PDO_CNT_UNEXPECTED_VALUE_HI_C : natural := 31; -- RO
     constant PDO_CNT_UNEXPECTED_VALUE_LO_C : natural := 0;
 
+    -- OMNI_INFO
+    constant OMNI_INFO_N_SLOTS_HI_C : natural := 3; -- RO: node-table slots (generic N_SLOTS)
+    constant OMNI_INFO_N_SLOTS_LO_C : natural := 0;
+
+    -- OMNI_CFG
+    constant OMNI_CFG_MASTER_ID_HI_C    : natural := 7;  -- RW
+    constant OMNI_CFG_MASTER_ID_LO_C    : natural := 0;
+    constant OMNI_CFG_N_AXES_HI_C       : natural := 11; -- RW
+    constant OMNI_CFG_N_AXES_LO_C       : natural := 8;
+    constant OMNI_CFG_BCAST_4X2_C       : natural := 12; -- RW
+    constant OMNI_CFG_SENDER_C          : natural := 13; -- RW
+    constant OMNI_CFG_SYNC_MODE_C       : natural := 14; -- RW
+    constant OMNI_CFG_STOP_ON_MISSING_C : natural := 15; -- RW
+
+    -- OMNI_CTRL
+    constant OMNI_CTRL_COMMIT_C       : natural := 0; -- pulse
+    constant OMNI_CTRL_PARAM_SEND_C   : natural := 1; -- pulse
+    constant OMNI_CTRL_CLR_COUNTERS_C : natural := 2; -- pulse
+
+    -- OMNI_STATUS
+    constant OMNI_STATUS_PENDING_C    : natural := 0; -- RO: a commit waits for the next cyc_take_i
+    constant OMNI_STATUS_INFEASIBLE_C : natural := 1; -- RO
+    constant OMNI_STATUS_CFG_ERR_C    : natural := 2; -- RO
+    constant OMNI_STATUS_NMT_BUSY_C   : natural := 3; -- RO
+    constant OMNI_STATUS_PARAM_BUSY_C : natural := 4; -- RO
+    constant OMNI_STATUS_QUERY_OPEN_C : natural := 5; -- RO: a node query's reply window is open
+    constant OMNI_STATUS_STOP_DUE_C   : natural := 6; -- RO: the automatic NMT stop all is queued
+    constant OMNI_STATUS_ENABLED_C    : natural := 7; -- RO: enable_i (CTRL.OMNI)
+
+    -- OMNI_SYNC_K
+    constant OMNI_SYNC_K_K_HI_C : natural := 15; -- RW: K, 1..65535 (0 acts as 1)
+    constant OMNI_SYNC_K_K_LO_C : natural := 0;
+
+    -- OMNI_POLL
+    constant OMNI_POLL_M_HI_C : natural := 15; -- RW
+    constant OMNI_POLL_M_LO_C : natural := 0;
+
+    -- OMNI_QUERY_WIN
+    constant OMNI_QUERY_WIN_US_HI_C : natural := 15; -- RW
+    constant OMNI_QUERY_WIN_US_LO_C : natural := 0;
+
+    -- OMNI_CYCLE
+    constant OMNI_CYCLE_COUNT_HI_C : natural := 15; -- RO
+    constant OMNI_CYCLE_COUNT_LO_C : natural := 0;
+
+    -- OMNI_SP01
+    constant OMNI_SP01_AXIS0_HI_C : natural := 15; -- RW: axis 0 (signed; 1-byte layout: bits 7:0)
+    constant OMNI_SP01_AXIS0_LO_C : natural := 0;
+    constant OMNI_SP01_AXIS1_HI_C : natural := 31; -- RW: axis 1 (signed; 1-byte layout: bits 23:16)
+    constant OMNI_SP01_AXIS1_LO_C : natural := 16;
+
+    -- OMNI_SP23
+    constant OMNI_SP23_AXIS2_HI_C : natural := 15; -- RW: axis 2 (signed; 1-byte layout: bits 7:0)
+    constant OMNI_SP23_AXIS2_LO_C : natural := 0;
+    constant OMNI_SP23_AXIS3_HI_C : natural := 31; -- RW: axis 3 (signed; 1-byte layout: bits 23:16)
+    constant OMNI_SP23_AXIS3_LO_C : natural := 16;
+
+    -- OMNI_SP45
+    constant OMNI_SP45_AXIS4_HI_C : natural := 15; -- RW: axis 4 (signed; 1-byte layout: bits 7:0)
+    constant OMNI_SP45_AXIS4_LO_C : natural := 0;
+    constant OMNI_SP45_AXIS5_HI_C : natural := 31; -- RW: axis 5 (signed; 1-byte layout: bits 23:16)
+    constant OMNI_SP45_AXIS5_LO_C : natural := 16;
+
+    -- OMNI_SP67
+    constant OMNI_SP67_AXIS6_HI_C : natural := 15; -- RW: axis 6 (signed; 1-byte layout: bits 7:0)
+    constant OMNI_SP67_AXIS6_LO_C : natural := 0;
+    constant OMNI_SP67_AXIS7_HI_C : natural := 31; -- RW: axis 7 (signed; 1-byte layout: bits 23:16)
+    constant OMNI_SP67_AXIS7_LO_C : natural := 16;
+
+    -- OMNI_NMT
+    constant OMNI_NMT_NODE_HI_C : natural := 7; -- WO: target node, 0 = all
+    constant OMNI_NMT_NODE_LO_C : natural := 0;
+    constant OMNI_NMT_STATE_C   : natural := 8; -- WO: 1 start, 0 stop
+
+    -- OMNI_PARAM_HDR
+    constant OMNI_PARAM_HDR_NODE_HI_C : natural := 7;  -- RW: receiver node id
+    constant OMNI_PARAM_HDR_NODE_LO_C : natural := 0;
+    constant OMNI_PARAM_HDR_TYPE_HI_C : natural := 15; -- RW: data type byte (A4)
+    constant OMNI_PARAM_HDR_TYPE_LO_C : natural := 8;
+    constant OMNI_PARAM_HDR_DLC_HI_C  : natural := 19; -- RW: data length, 2..8 (2 + content bytes)
+    constant OMNI_PARAM_HDR_DLC_LO_C  : natural := 16;
+
+    -- OMNI_PARAM_LO
+    constant OMNI_PARAM_LO_DATA_HI_C : natural := 31; -- RW: byte 2 in 7:0 .. byte 5 in 31:24
+    constant OMNI_PARAM_LO_DATA_LO_C : natural := 0;
+
+    -- OMNI_PARAM_HI
+    constant OMNI_PARAM_HI_DATA_HI_C : natural := 15; -- RW: byte 6 in 7:0, byte 7 in 15:8
+    constant OMNI_PARAM_HI_DATA_LO_C : natural := 0;
+
+    -- OMNI_SEL
+    constant OMNI_SEL_SLOT_HI_C : natural := 2; -- RW
+    constant OMNI_SEL_SLOT_LO_C : natural := 0;
+    constant OMNI_SEL_ACK_C     : natural := 8; -- pulse
+    constant OMNI_SEL_NEW_C     : natural := 9; -- RO: snapshot: the feedback was not acknowledged
+
+    -- OMNI_SLOT_CFG
+    constant OMNI_SLOT_CFG_NODE_HI_C : natural := 7;  -- RW
+    constant OMNI_SLOT_CFG_NODE_LO_C : natural := 0;
+    constant OMNI_SLOT_CFG_FC_HI_C   : natural := 10; -- RW
+    constant OMNI_SLOT_CFG_FC_LO_C   : natural := 8;
+    constant OMNI_SLOT_CFG_VALID_C   : natural := 15; -- RW
+    constant OMNI_SLOT_CFG_DLC_HI_C  : natural := 19; -- RW: feedback DLC expected
+    constant OMNI_SLOT_CFG_DLC_LO_C  : natural := 16;
+
+    -- OMNI_FB_LO
+    constant OMNI_FB_LO_DATA_HI_C : natural := 31; -- RO: byte 0 (sender) in 7:0 .. byte 3 in 31:24
+    constant OMNI_FB_LO_DATA_LO_C : natural := 0;
+
+    -- OMNI_FB_HI
+    constant OMNI_FB_HI_DATA_HI_C : natural := 31; -- RO
+    constant OMNI_FB_HI_DATA_LO_C : natural := 0;
+
+    -- OMNI_FB_INFO
+    constant OMNI_FB_INFO_SEQ_HI_C   : natural := 15; -- RO
+    constant OMNI_FB_INFO_SEQ_LO_C   : natural := 0;
+    constant OMNI_FB_INFO_CYCLE_HI_C : natural := 31; -- RO: OMNI_CYCLE when it was stored
+    constant OMNI_FB_INFO_CYCLE_LO_C : natural := 16;
+
+    -- OMNI_SLOT_ERR
+    constant OMNI_SLOT_ERR_LEN_ERR_HI_C : natural := 15; -- RO
+    constant OMNI_SLOT_ERR_LEN_ERR_LO_C : natural := 0;
+    constant OMNI_SLOT_ERR_MISSED_HI_C  : natural := 31; -- RO: cycles without feedback (saturates)
+    constant OMNI_SLOT_ERR_MISSED_LO_C  : natural := 16;
+
+    -- OMNI_FB_NEW
+    constant OMNI_FB_NEW_NEW_HI_C : natural := 7; -- W1C
+    constant OMNI_FB_NEW_NEW_LO_C : natural := 0;
+
+    -- OMNI_ALIVE
+    constant OMNI_ALIVE_ALIVE_HI_C : natural := 7; -- RO
+    constant OMNI_ALIVE_ALIVE_LO_C : natural := 0;
+
+    -- OMNI_MISSING
+    constant OMNI_MISSING_MISSING_HI_C : natural := 7; -- W1C
+    constant OMNI_MISSING_MISSING_LO_C : natural := 0;
+
+    -- OMNI_PMB_INFO
+    constant OMNI_PMB_INFO_SENDER_HI_C : natural := 7;  -- RO: byte 0
+    constant OMNI_PMB_INFO_SENDER_LO_C : natural := 0;
+    constant OMNI_PMB_INFO_TYPE_HI_C   : natural := 15; -- RO: byte 1
+    constant OMNI_PMB_INFO_TYPE_LO_C   : natural := 8;
+    constant OMNI_PMB_INFO_DLC_HI_C    : natural := 19; -- RO: data length
+    constant OMNI_PMB_INFO_DLC_LO_C    : natural := 16;
+    constant OMNI_PMB_INFO_OVERRUN_C   : natural := 30; -- W1C
+    constant OMNI_PMB_INFO_NEW_C       : natural := 31; -- W1C: a frame was stored; write 1 clears
+
+    -- OMNI_PMB_LO
+    constant OMNI_PMB_LO_DATA_HI_C : natural := 31; -- RO: byte 2 in 7:0 .. byte 5 in 31:24
+    constant OMNI_PMB_LO_DATA_LO_C : natural := 0;
+
+    -- OMNI_PMB_HI
+    constant OMNI_PMB_HI_DATA_HI_C : natural := 15; -- RO: byte 6 in 7:0, byte 7 in 15:8
+    constant OMNI_PMB_HI_DATA_LO_C : natural := 0;
+
+    -- OMNI_BUS_BITS
+    constant OMNI_BUS_BITS_BITS_HI_C : natural := 15; -- RO
+    constant OMNI_BUS_BITS_BITS_LO_C : natural := 0;
+
+    -- OMNI_CNT_FB_RX
+    constant OMNI_CNT_FB_RX_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_FB_RX_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_LEN_ERR
+    constant OMNI_CNT_LEN_ERR_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_LEN_ERR_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_UNEXPECTED
+    constant OMNI_CNT_UNEXPECTED_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_UNEXPECTED_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_MISSED
+    constant OMNI_CNT_MISSED_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_MISSED_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_NODE_MISSING
+    constant OMNI_CNT_NODE_MISSING_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_NODE_MISSING_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_REFUSED
+    constant OMNI_CNT_REFUSED_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_REFUSED_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_TX
+    constant OMNI_CNT_TX_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_TX_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_LATE
+    constant OMNI_CNT_LATE_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_LATE_VALUE_LO_C : natural := 0;
+
+    -- OMNI_CNT_PARAM_RX
+    constant OMNI_CNT_PARAM_RX_VALUE_HI_C : natural := 31; -- RO
+    constant OMNI_CNT_PARAM_RX_VALUE_LO_C : natural := 0;
+
     -- ---------------------------------------------------------------------------------------------
     -- Reset words (registers whose every readable field has one)
     -- ---------------------------------------------------------------------------------------------
@@ -508,5 +749,18 @@ package canopen_regs_pkg is
     constant PDO_INHIBIT_RESET_C     : std_logic_vector(31 downto 0) := x"00000000";
     constant PDO_DATA_LO_RESET_C     : std_logic_vector(31 downto 0) := x"00000000";
     constant PDO_DATA_HI_RESET_C     : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_CTRL_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_SYNC_K_RESET_C     : std_logic_vector(31 downto 0) := x"00000001";
+    constant OMNI_POLL_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_QUERY_WIN_RESET_C  : std_logic_vector(31 downto 0) := x"000003E8";
+    constant OMNI_SP01_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_SP23_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_SP45_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_SP67_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_NMT_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PARAM_HDR_RESET_C  : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PARAM_LO_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PARAM_HI_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_SLOT_CFG_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
 
 end package canopen_regs_pkg;

@@ -9,6 +9,7 @@ canopen_util_pkg.vhd
 canopen_sdo_client.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
+omni_engine.vhd
 canopen_node_monitor.vhd
 mcp2510_spi_master.vhd
 mcp2510_instr.vhd

@@ -3,7 +3,8 @@
 
 The Avalon-MM slave ``canopen_host_regs`` exposes 256 words of 32 bits (word addressing). This
 file describes every register once, as Python data (:data:`REGISTERS`, :data:`NODE_GROUP`,
-:data:`SDO_BUF`, and the PDO engine's :data:`PDO_WIN` / :data:`PDO_REGISTERS`), and generates
+:data:`SDO_BUF`, the PDO engine's :data:`PDO_WIN` / :data:`PDO_REGISTERS` and the Omni-ID
+engine's :data:`OMNI_REGISTERS` in the same window), and generates
 from it:
 
 * ``rtl/canopen_regs_pkg.vhd``  address constants ``REG_<NAME>_C``, field positions
@@ -145,7 +146,11 @@ REGISTERS: tuple[Register, ...] = (
       F("MINOR", "15:0", "RO", 0x0001, "minor version"),
       F("MAJOR", "31:16", "RO", 0x0001, "major version")),
     R("CTRL", 0x02, "RW + pulse", "control",
-      F("SYNC_EN", 0, "RW", 0, "1: the SYNC producer runs (SYNC_PERIOD_US /= 0)"),
+      F("SYNC_EN", 0, "RW", 0, "1: the SYNC producer runs (SYNC_PERIOD_US /= 0); in Omni-ID "
+                               "mode: the periodic command cycle runs"),
+      F("OMNI", 1, "RW", 0, "1: Omni-ID protocol mode (one protocol per bus): the CANopen "
+                            "services are off, every frame goes to the Omni-ID engine and "
+                            "PDO_WIN shows its registers; change only while SYNC_EN = 0"),
       F("REINIT", 8, "pulse", 0, "write 1: re-initialise the CAN controller and the master"),
       F("CLR_COUNTERS", 9, "pulse", 0, "write 1: clear every CNT_* register")),
     R("STATUS", 0x03, "RO", "master status",
@@ -359,6 +364,142 @@ PDO_REGISTERS: tuple[Register, ...] = (
 )
 
 
+# ------------------------------------------------------------------------ Omni-ID engine window
+# With CTRL.OMNI = 1 the same window C0h..FFh is passed through to omni_engine instead of
+# canopen_pdo_engine (the window is banked by CTRL.OMNI): OMNI_REGISTERS describe it. Word
+# offset = address - C0h, as for PDO_REGISTERS; addresses may equal PDO_REGISTERS' by design.
+OMNI_WIN = PDO_WIN
+
+
+def _omni_counter(name: str, addr: int, what: str) -> Register:
+    return R(f"OMNI_CNT_{name}", addr, "RO", f"Omni counter: {what}",
+             F("VALUE", "31:0", "RO", None, "count, saturates at FFFFFFFFh, cleared by "
+                                            "OMNI_CTRL.CLR_COUNTERS"))
+
+
+def _omni_setpoints(addr: int, a: int) -> Register:
+    return R(f"OMNI_SP{a}{a + 1}", addr, "RW", f"staging set-points of axes {a} and {a + 1}",
+             F(f"AXIS{a}", "15:0", "RW", 0, f"axis {a} (signed; 1-byte layout: bits 7:0)"),
+             F(f"AXIS{a + 1}", "31:16", "RW", 0, f"axis {a + 1} (signed; 1-byte layout: bits "
+                                                 "23:16)"))
+
+
+OMNI_REGISTERS: tuple[Register, ...] = (
+    R("OMNI_INFO", 0xC0, "RO", "Omni-ID engine size",
+      F("N_SLOTS", "3:0", "RO", None, "node-table slots (generic N_SLOTS)")),
+    R("OMNI_CFG", 0xC1, "RW", "Omni-ID configuration (write while SYNC_EN = 0)",
+      F("MASTER_ID", "7:0", "RW", None, "the master's node id 1..255 (reset: generic "
+                                        "MASTER_ID_DEFAULT)"),
+      F("N_AXES", "11:8", "RW", 0, "set-points in the broadcast, 1..8 (fc 001 with SENDER: "
+                                   "1..7; fc 100: 1..4); others: configuration error"),
+      F("BCAST_4X2", 12, "RW", 0, "0: fc 001 broadcast, 1 byte per axis; 1: fc 100, 2 bytes "
+                                  "per axis big-endian"),
+      F("SENDER", 13, "RW", 0, "fc 001: MASTER_ID as byte 0 before the axes (trace form, A1)"),
+      F("SYNC_MODE", 14, "RW", 0, "0: thesis, the cycle frame is always the broadcast; 1: "
+                                  "every K-th cycle frame is the Omni SYNC (080h, DLC 0) and "
+                                  "the broadcast follows through tx_req_o"),
+      F("STOP_ON_MISSING", 15, "RW", 0, "queue NMT stop all ([00][00]) when a node misses a "
+                                        "query")),
+    R("OMNI_CTRL", 0xC2, "pulse", "Omni-ID commands",
+      F("COMMIT", 0, "pulse", 0, "the staging set-points become the active set at the next "
+                                 "cyc_take_i (OMNI_STATUS.PENDING until then)"),
+      F("PARAM_SEND", 1, "pulse", 0, "queue the parameter frame of OMNI_PARAM_*"),
+      F("CLR_COUNTERS", 2, "pulse", 0, "clear every OMNI_CNT_* and every slot's MISSED / "
+                                       "LEN_ERR")),
+    R("OMNI_STATUS", 0xC3, "RO", "Omni-ID engine status",
+      F("PENDING", 0, "RO", None, "a commit waits for the next cyc_take_i"),
+      F("INFEASIBLE", 1, "RO", None, "the worst-case cycle (OMNI_BUS_BITS) does not fit in "
+                                     "the period, or CFG_ERR (feasible_o = 0)"),
+      F("CFG_ERR", 2, "RO", None, "OMNI_CFG.N_AXES out of range for the layout"),
+      F("NMT_BUSY", 3, "RO", None, "a host NMT frame is queued (a new OMNI_NMT write is "
+                                   "refused)"),
+      F("PARAM_BUSY", 4, "RO", None, "the parameter frame is queued (PARAM_SEND and "
+                                     "OMNI_PARAM_* writes are refused)"),
+      F("QUERY_OPEN", 5, "RO", None, "a node query's reply window is open"),
+      F("STOP_DUE", 6, "RO", None, "the automatic NMT stop all is queued"),
+      F("ENABLED", 7, "RO", None, "enable_i (CTRL.OMNI)")),
+    R("OMNI_SYNC_K", 0xC4, "RW", "SYNC_MODE 1: cycle k is a SYNC cycle when k mod K = 0",
+      F("K", "15:0", "RW", 1, "K, 1..65535 (0 acts as 1)")),
+    R("OMNI_POLL", 0xC5, "RW", "node monitoring period",
+      F("M", "15:0", "RW", 0, "node query at cycle k when k mod M = 0; 0 = off")),
+    R("OMNI_QUERY_WIN", 0xC6, "RW", "node query reply window",
+      F("US", "15:0", "RW", 1000, "window in us from tx_ack_i of the query (0 acts as 1)")),
+    R("OMNI_CYCLE", 0xC7, "RO", "cycle counter",
+      F("COUNT", "15:0", "RO", None, "cycle_i strobes since enable_i rose (wraps): after "
+                                     "cycle k's instant it reads k + 1")),
+    _omni_setpoints(0xC8, 0),
+    _omni_setpoints(0xC9, 2),
+    _omni_setpoints(0xCA, 4),
+    _omni_setpoints(0xCB, 6),
+    R("OMNI_NMT", 0xCC, "WO", "a write queues one NMT frame: id 0, DLC 2, [NODE][STATE] (A3)",
+      F("NODE", "7:0", "WO", None, "target node, 0 = all"),
+      F("STATE", 8, "WO", None, "1 start, 0 stop")),
+    R("OMNI_PARAM_HDR", 0xCD, "RW", "parameter frame: id 700h + NODE, data [MASTER_ID][TYPE]"
+      "[content]",
+      F("NODE", "7:0", "RW", 0, "receiver node id"),
+      F("TYPE", "15:8", "RW", 0, "data type byte (A4)"),
+      F("DLC", "19:16", "RW", 0, "data length, 2..8 (2 + content bytes)")),
+    R("OMNI_PARAM_LO", 0xCE, "RW", "parameter frame bytes 2..5 (content, big-endian as sent)",
+      F("DATA", "31:0", "RW", 0, "byte 2 in 7:0 .. byte 5 in 31:24")),
+    R("OMNI_PARAM_HI", 0xCF, "RW", "parameter frame bytes 6..7",
+      F("DATA", "15:0", "RW", 0, "byte 6 in 7:0, byte 7 in 15:8")),
+    R("OMNI_SEL", 0xD0, "RW + pulse", "slot shown by D1h..D5h; a write takes a snapshot of "
+      "the slot's feedback buffer",
+      F("SLOT", "2:0", "RW", 0, "slot 0 .. N_SLOTS - 1 (a slot that does not exist reads 0 "
+                                "and ignores writes)"),
+      F("ACK", 8, "pulse", 0, "clear the slot's NEW flag in the same cycle as the snapshot"),
+      F("NEW", 9, "RO", None, "snapshot: the feedback was not acknowledged")),
+    R("OMNI_SLOT_CFG", 0xD1, "RW", "node table entry of the selected slot",
+      F("NODE", "7:0", "RW", 0, "slave node id 1..255 (byte 0 of its feedback, its query "
+                                "reply id)"),
+      F("FC", "10:8", "RW", 0, "feedback function code: 010, 011, 101 or 110 (others never "
+                               "match)"),
+      F("VALID", 15, "RW", 0, "slot in use (feedback, query, missed cycles, feasibility)"),
+      F("DLC", "19:16", "RW", 0, "feedback DLC expected")),
+    R("OMNI_FB_LO", 0xD2, "RO", "snapshot: feedback bytes 0..3 as received",
+      F("DATA", "31:0", "RO", None, "byte 0 (sender) in 7:0 .. byte 3 in 31:24")),
+    R("OMNI_FB_HI", 0xD3, "RO", "snapshot: feedback bytes 4..7 as received",
+      F("DATA", "31:0", "RO", None, "byte 4 in 7:0 .. byte 7 in 31:24 (beyond the DLC: 0)")),
+    R("OMNI_FB_INFO", 0xD4, "RO", "snapshot: sequence and cycle of the feedback",
+      F("SEQ", "15:0", "RO", None, "feedback frames stored in the slot (wraps)"),
+      F("CYCLE", "31:16", "RO", None, "OMNI_CYCLE when it was stored")),
+    R("OMNI_SLOT_ERR", 0xD5, "RO", "error counters of the selected slot",
+      F("LEN_ERR", "15:0", "RO", None, "feedback with a DLC other than the slot's "
+                                       "(saturates)"),
+      F("MISSED", "31:16", "RO", None, "cycles without feedback (saturates)")),
+    R("OMNI_FB_NEW", 0xD6, "W1C", "NEW flags of all slots",
+      F("NEW", "7:0", "W1C", None, "bit k: slot k stored feedback not acknowledged")),
+    R("OMNI_ALIVE", 0xD7, "RO", "replies to the last node query",
+      F("ALIVE", "7:0", "RO", None, "bit k: slot k answered (cleared when the next query is "
+                                    "sent)")),
+    R("OMNI_MISSING", 0xD8, "W1C", "sticky: slots that missed a query window",
+      F("MISSING", "7:0", "W1C", None, "bit k: valid slot k did not answer in time")),
+    R("OMNI_PMB_INFO", 0xD9, "RO + W1C", "parameter mailbox: last fc 111 frame to MASTER_ID",
+      F("SENDER", "7:0", "RO", None, "byte 0"),
+      F("TYPE", "15:8", "RO", None, "byte 1"),
+      F("DLC", "19:16", "RO", None, "data length"),
+      F("OVERRUN", 30, "W1C", None, "sticky: a frame replaced one not acknowledged"),
+      F("NEW", 31, "W1C", None, "a frame was stored; write 1 clears")),
+    R("OMNI_PMB_LO", 0xDA, "RO", "parameter mailbox: bytes 2..5",
+      F("DATA", "31:0", "RO", None, "byte 2 in 7:0 .. byte 5 in 31:24")),
+    R("OMNI_PMB_HI", 0xDB, "RO", "parameter mailbox: bytes 6..7",
+      F("DATA", "15:0", "RO", None, "byte 6 in 7:0, byte 7 in 15:8")),
+    R("OMNI_BUS_BITS", 0xDC, "RO", "feasibility check: worst-case bits of one cycle",
+      F("BITS", "15:0", "RO", None, "cycle frame(s) + one feedback per valid slot, worst-case "
+                                    "stuffing, with intermission")),
+    _omni_counter("FB_RX", 0xE0, "feedback frames stored"),
+    _omni_counter("LEN_ERR", 0xE1, "feedback frames with a wrong DLC"),
+    _omni_counter("UNEXPECTED", 0xE2, "frames nobody expected"),
+    _omni_counter("MISSED", 0xE3, "cycles without feedback, summed over the slots"),
+    _omni_counter("NODE_MISSING", 0xE4, "query replies missing, summed over the slots"),
+    _omni_counter("REFUSED", 0xE5, "host NMT / parameter requests refused (busy)"),
+    _omni_counter("TX", 0xE6, "frames taken through tx_ack_i"),
+    _omni_counter("LATE", 0xE7, "broadcasts after a SYNC or queries still waiting at the "
+                                "next cycle instant (replaced / skipped)"),
+    _omni_counter("PARAM_RX", 0xE8, "parameter frames stored in the mailbox"),
+)
+
+
 # ------------------------------------------------------------------------------ validation
 def all_registers() -> list[tuple[Register, int]]:
     """Every register with the number of slots it occupies (1, or the group's maximum)."""
@@ -416,18 +557,20 @@ def validate() -> None:
     for win in (SDO_BUF, PDO_WIN):
         if win.words & (win.words - 1) or win.addr % win.words:
             raise ValueError(f"{win.name}: not a power of two aligned to its size")
-    inside: dict[int, str] = {}
-    for reg in PDO_REGISTERS:
-        if reg.name in names:
-            raise ValueError(f"register {reg.name} defined twice")
-        names.add(reg.name)
-        if not PDO_WIN.addr <= reg.addr < PDO_WIN.addr + PDO_WIN.words:
-            raise ValueError(f"{reg.name}: address {reg.addr:#x} outside {PDO_WIN.name}")
-        if reg.addr in inside:
-            raise ValueError(f"{reg.name}: address {reg.addr:#x} already used by "
-                             f"{inside[reg.addr]}")
-        inside[reg.addr] = reg.name
-        _validate_fields(reg)
+    # the window is banked (CTRL.OMNI): each bank's registers are unique inside it
+    for bank in (PDO_REGISTERS, OMNI_REGISTERS):
+        inside: dict[int, str] = {}
+        for reg in bank:
+            if reg.name in names:
+                raise ValueError(f"register {reg.name} defined twice")
+            names.add(reg.name)
+            if not PDO_WIN.addr <= reg.addr < PDO_WIN.addr + PDO_WIN.words:
+                raise ValueError(f"{reg.name}: address {reg.addr:#x} outside {PDO_WIN.name}")
+            if reg.addr in inside:
+                raise ValueError(f"{reg.name}: address {reg.addr:#x} already used by "
+                                 f"{inside[reg.addr]}")
+            inside[reg.addr] = reg.name
+            _validate_fields(reg)
     if NODE_GROUP.stride < len(NODE_GROUP.registers):
         raise ValueError("node group stride smaller than the group")
 
@@ -493,8 +636,8 @@ def gen_vhdl() -> str:
         "--   Word addresses REG_<NAME>_C, field positions <REG>_<FIELD>_HI_C/_LO_C (fields wider",
         "--   than one bit) or <REG>_<FIELD>_C (single bits) and reset words <REG>_RESET_C. The",
         "--   per-node registers REG_NODE_*_C are the addresses of slot 0; slot k adds",
-        "--   k * REG_NODE_STRIDE_C. REG_PDO_*_C lie inside the PDO engine's window. Tables:",
-        "--   docs/register_map.md.",
+        "--   k * REG_NODE_STRIDE_C. REG_PDO_*_C lie inside the PDO engine's window, REG_OMNI_*_C",
+        "--   inside the same window banked by CTRL.OMNI. Tables: docs/register_map.md.",
         "-- " + "=" * 97,
         "",
         "library ieee;",
@@ -535,8 +678,18 @@ def gen_vhdl() -> str:
          (f"REG_{PDO_WIN.name}_WORDS_C", "natural", str(PDO_WIN.words), "words")]
         + [(f"REG_{r.name}_C", "natural", _hex_nat(r.addr), f"{r.access}: {r.desc}")
            for r in PDO_REGISTERS])
+    L += ["", bar,
+          "    -- Omni-ID engine bank of the same window (CTRL.OMNI = 1): passed through to",
+          "    -- omni_engine, registers REG_OMNI_*_C (word offset = address - REG_OMNI_WIN_C)",
+          bar]
+    L += _vhdl_block(
+        [("REG_OMNI_WIN_C", "natural", _hex_nat(OMNI_WIN.addr), "first word (= PDO_WIN)"),
+         ("REG_OMNI_WIN_WORDS_C", "natural", str(OMNI_WIN.words), "words")]
+        + [(f"REG_{r.name}_C", "natural", _hex_nat(r.addr), f"{r.access}: {r.desc}")
+           for r in OMNI_REGISTERS])
     L += ["", bar, "    -- Fields", bar]
-    for reg in list(REGISTERS) + list(NODE_GROUP.registers) + list(PDO_REGISTERS):
+    for reg in (list(REGISTERS) + list(NODE_GROUP.registers) + list(PDO_REGISTERS)
+                + list(OMNI_REGISTERS)):
         L += ["", f"    -- {reg.name}"]
         L += _vhdl_block(_field_rows(reg))
     L += ["", bar, "    -- Reset words (registers whose every readable field has one)", bar]
@@ -544,7 +697,7 @@ def gen_vhdl() -> str:
                        f'x"{r.reset:08X}"', "") for r, _ in all_registers()
                       if r.reset is not None]
                      + [(f"{r.name}_RESET_C", "std_logic_vector(31 downto 0)",
-                         f'x"{r.reset:08X}"', "") for r in PDO_REGISTERS
+                         f'x"{r.reset:08X}"', "") for r in PDO_REGISTERS + OMNI_REGISTERS
                         if r.reset is not None])
     L += ["", "end package canopen_regs_pkg;", ""]
     return "\n".join(L)
@@ -584,7 +737,8 @@ def gen_python() -> str:
         "wider ones ``<REG>_<FIELD>_MASK``/``_SHIFT``; reset words ``<REG>_RESET``. "
         ":data:`REGISTERS`",
         "describes every register (access, reset, fields) for code that iterates over the map;",
-        ":data:`PDO_REGISTERS` the PDO engine's registers inside the ``PDO_WIN`` window.",
+        ":data:`PDO_REGISTERS` the PDO engine's registers inside the ``PDO_WIN`` window,",
+        ":data:`OMNI_REGISTERS` the Omni-ID engine's registers in the same window (CTRL.OMNI).",
         '"""',
         "",
         "from __future__ import annotations",
@@ -609,13 +763,19 @@ def gen_python() -> str:
           f"REG_{PDO_WIN.name} = 0x{PDO_WIN.addr:02X}",
           f"{PDO_WIN.name}_WORDS = {PDO_WIN.words}"]
     L += [f"REG_{r.name} = 0x{r.addr:02X}" for r in PDO_REGISTERS]
+    L += ["", "# Omni-ID engine bank of the same window (CTRL.OMNI = 1) and its registers",
+          f"REG_OMNI_WIN = 0x{OMNI_WIN.addr:02X}",
+          f"OMNI_WIN_WORDS = {OMNI_WIN.words}"]
+    L += [f"REG_{r.name} = 0x{r.addr:02X}" for r in OMNI_REGISTERS]
     L.append("")
-    for reg in list(REGISTERS) + list(NODE_GROUP.registers) + list(PDO_REGISTERS):
+    for reg in (list(REGISTERS) + list(NODE_GROUP.registers) + list(PDO_REGISTERS)
+                + list(OMNI_REGISTERS)):
         L.append(f"# {reg.name}")
         L += _py_field_consts(reg)
     L += ["", "# reset words"]
     L += [f"{r.name}_RESET = 0x{r.reset:08X}" for r, _ in all_registers() if r.reset is not None]
-    L += [f"{r.name}_RESET = 0x{r.reset:08X}" for r in PDO_REGISTERS if r.reset is not None]
+    L += [f"{r.name}_RESET = 0x{r.reset:08X}" for r in PDO_REGISTERS + OMNI_REGISTERS
+          if r.reset is not None]
     L += [
         "", "",
         "class FieldInfo(NamedTuple):",
@@ -647,6 +807,14 @@ def gen_python() -> str:
         L += _py_reginfo(r, 0)
     L += [
         "}",
+        "",
+        "#: registers of the Omni-ID engine bank of the same window (CTRL.OMNI = 1)",
+        "OMNI_REGISTERS: dict[str, RegInfo] = {",
+    ]
+    for r in OMNI_REGISTERS:
+        L += _py_reginfo(r, 0)
+    L += [
+        "}",
         "", "",
         "def node_addr(reg: int | str, slot: int) -> int:",
         '    """Address of per-node register ``reg`` (address of slot 0 or name) for ``slot``."""',
@@ -667,7 +835,9 @@ def gen_python() -> str:
         "    return info.addr",
         "", "",
         "def _info(reg: str) -> RegInfo:",
-        "    return REGISTERS[reg] if reg in REGISTERS else PDO_REGISTERS[reg]",
+        "    if reg in REGISTERS:",
+        "        return REGISTERS[reg]",
+        "    return PDO_REGISTERS[reg] if reg in PDO_REGISTERS else OMNI_REGISTERS[reg]",
         "", "",
         "def get_field(reg: str, field: str, value: int) -> int:",
         '    """Value of ``field`` of register ``reg`` in the word ``value``."""',
@@ -749,6 +919,10 @@ def gen_markdown() -> str:
         rows.append((r.addr, f"| {r.addr:02X}h | [{r.name}](#{r.name.lower()}) | {r.access} | "
                              f"{r.desc} |"))
     L += [row for _, row in sorted(rows)]
+    L += [f"| {PDO_WIN.addr:02X}h..{pend:02X}h | [OMNI_WIN](#omni_win) (CTRL.OMNI = 1) | "
+          f"{PDO_WIN.access} | the same window, passed through to omni_engine instead |"]
+    L += [f"| {r.addr:02X}h | [{r.name}](#{r.name.lower()}) | {r.access} | {r.desc} |"
+          for r in OMNI_REGISTERS]
     L += [
         "",
         f"Per-node registers: slot k = 0 .. {g.generic} − 1 ({g.generic} = 1..{g.slots_max}, "
@@ -782,6 +956,19 @@ def gen_markdown() -> str:
           "0 and ignore",
           "writes. PDO_CFG .. PDO_LATE show the channel chosen by PDO_SEL.", ""]
     for r in PDO_REGISTERS:
+        reset = "" if r.reset is None else f", reset {r.reset:08X}h"
+        L += [f"### {r.name}", "", f"{r.addr:02X}h, {r.access}{reset}: {r.desc}.", ""]
+        L += _md_fields(r)
+        L.append("")
+    L += ["### OMNI_WIN", "",
+          f"{PDO_WIN.addr:02X}h..{pend:02X}h with CTRL.OMNI = 1: the same window, banked. "
+          "`canopen_master_core` passes",
+          "the accesses to [`omni_engine`](omni_engine.md) instead of `canopen_pdo_engine` "
+          "(same port",
+          "protocol and read latency). Offsets not listed read 0 and ignore writes. "
+          "OMNI_SLOT_CFG .. OMNI_SLOT_ERR",
+          "show the slot chosen by OMNI_SEL.", ""]
+    for r in OMNI_REGISTERS:
         reset = "" if r.reset is None else f", reset {r.reset:08X}h"
         L += [f"### {r.name}", "", f"{r.addr:02X}h, {r.access}{reset}: {r.desc}.", ""]
         L += _md_fields(r)

@@ -91,7 +91,7 @@ RO_SOURCES = {
 
 #: RW fields -> output port (slot fields: slice slot * width of the port)
 RW_OUTPUTS = {
-    ("CTRL", "SYNC_EN"): "sync_en_o",
+    ("CTRL", "SYNC_EN"): "sync_en_o", ("CTRL", "OMNI"): "omni_en_o",
     ("SYNC_PERIOD_US", "VALUE"): "sync_period_us_o",
     ("SYNC_OVERFLOW", "VALUE"): "sync_overflow_o",
     ("SYNC_WINDOW_US", "VALUE"): "sync_window_us_o",

@@ -148,7 +148,7 @@ class CanopenMasterHost:
     async def read_fields(self, reg: str, slot: int | None = None) -> dict[str, int]:
         """Every readable field of ``reg`` as ``{field: value}``."""
         word = await self.read(reg, slot)
-        info = R.REGISTERS[reg] if reg in R.REGISTERS else R.PDO_REGISTERS[reg]
+        info = R._info(reg)
         return {name: R.get_field(reg, name, word)
                 for name, f in info.fields.items() if f.access in ("RO", "RW", "W1C")}
 
@@ -464,3 +464,82 @@ class CanopenMasterHost:
             if get_sim_time("us") > t_end:
                 raise TimeoutError(f"configuration list not finished in {timeout_us} us: {st}")
             await Timer(poll_us, "us")
+
+    # ------------------------------------------------------------------ Omni-ID mode
+    # CTRL.OMNI banks the window C0h..FFh to the Omni-ID engine (OMNI_* registers); OMNI_SEL is
+    # shared by the slot registers, so slot sequences hold the same lock as the PDO ones.
+    async def omni_mode(self, on: bool) -> None:
+        """CTRL.OMNI (with SYNC_EN = 0: change the protocol only while the cycle is stopped)."""
+        await self.write("CTRL", R.CTRL_OMNI if on else 0)
+
+    async def omni_config(self, *, master_id: int = 2, n_axes: int = 4, bcast_4x2: bool = False,
+                          sender: bool = True, sync_mode: int = 0, sync_k: int = 1,
+                          poll_m: int = 0, query_win_us: int = 1000,
+                          stop_on_missing: bool = False) -> None:
+        """OMNI_CFG, OMNI_SYNC_K, OMNI_POLL and OMNI_QUERY_WIN."""
+        await self.write("OMNI_CFG", R.make(
+            "OMNI_CFG", MASTER_ID=master_id, N_AXES=n_axes, BCAST_4X2=int(bcast_4x2),
+            SENDER=int(sender), SYNC_MODE=sync_mode, STOP_ON_MISSING=int(stop_on_missing)))
+        await self.write("OMNI_SYNC_K", R.make("OMNI_SYNC_K", K=sync_k))
+        await self.write("OMNI_POLL", R.make("OMNI_POLL", M=poll_m))
+        await self.write("OMNI_QUERY_WIN", R.make("OMNI_QUERY_WIN", US=query_win_us))
+
+    async def omni_slot(self, slot: int, node: int, fc: int, dlc: int,
+                        valid: bool = True) -> None:
+        """Node table slot: the node, its feedback function code and DLC."""
+        async with self._pdo_lock:
+            await self.write("OMNI_SEL", R.make("OMNI_SEL", SLOT=slot))
+            await self.write("OMNI_SLOT_CFG", R.make("OMNI_SLOT_CFG", NODE=node, FC=fc,
+                                                     VALID=int(valid), DLC=dlc))
+
+    async def omni_setpoints(self, values: Iterable[int], commit: bool = True) -> None:
+        """Staging set-points of axes 0.. (16-bit two's complement; 1-byte slots send the low
+        byte) and, by default, COMMIT: they go out in the cycle frame taken next."""
+        vals = [v & 0xFFFF for v in values]
+        vals += [0] * (-len(vals) % 2)
+        for i in range(0, len(vals), 2):
+            await self.write(R.REG_OMNI_SP01 + i // 2, vals[i] | vals[i + 1] << 16)
+        if commit:
+            await self.write("OMNI_CTRL", R.OMNI_CTRL_COMMIT)
+
+    async def omni_nmt(self, node: int, start: bool) -> None:
+        """Omni-ID NMT frame [node (0 = all)][1 start / 0 stop]."""
+        await self.write("OMNI_NMT", R.make("OMNI_NMT", NODE=node, STATE=int(start)))
+
+    async def omni_param(self, node: int, dtype: int, content: bytes) -> None:
+        """Parameter frame 700h + node: [master][type][content] (content 0..6 bytes)."""
+        if len(content) > 6:
+            raise ValueError("a parameter frame carries at most 6 content bytes")
+        raw = bytes(content).ljust(6, b"\0")
+        await self.write("OMNI_PARAM_HDR", R.make("OMNI_PARAM_HDR", NODE=node, TYPE=dtype,
+                                                  DLC=2 + len(content)))
+        await self.write("OMNI_PARAM_LO", int.from_bytes(raw[:4], "little"))
+        await self.write("OMNI_PARAM_HI", int.from_bytes(raw[4:], "little"))
+        await self.write("OMNI_CTRL", R.OMNI_CTRL_PARAM_SEND)
+
+    async def omni_status(self) -> dict[str, int]:
+        """OMNI_STATUS fields plus OMNI_CYCLE, OMNI_ALIVE, OMNI_MISSING, OMNI_BUS_BITS."""
+        st = await self.read_fields("OMNI_STATUS")
+        st["cycle"] = await self.read("OMNI_CYCLE")
+        st["alive"] = await self.read("OMNI_ALIVE")
+        st["missing"] = await self.read("OMNI_MISSING")
+        st["bus_bits"] = await self.read("OMNI_BUS_BITS")
+        return st
+
+    async def omni_feedback(self, slot: int, ack: bool = True) -> dict[str, Any]:
+        """Snapshot of slot ``slot``'s last feedback frame: data, seq, cycle, new, errors."""
+        async with self._pdo_lock:
+            await self.write("OMNI_SEL", R.make("OMNI_SEL", SLOT=slot, ACK=int(ack)))
+            sel = await self.read_fields("OMNI_SEL")
+            lo = await self.read("OMNI_FB_LO")
+            hi = await self.read("OMNI_FB_HI")
+            info = await self.read_fields("OMNI_FB_INFO")
+            err = await self.read_fields("OMNI_SLOT_ERR")
+        return {"data": (lo | hi << 32).to_bytes(8, "little"), "seq": info["SEQ"],
+                "cycle": info["CYCLE"], "new": bool(sel["NEW"]), "len_err": err["LEN_ERR"],
+                "missed": err["MISSED"]}
+
+    async def omni_counters(self) -> dict[str, int]:
+        """Every OMNI_CNT_* register, keyed by its lower-case name without ``OMNI_CNT_``."""
+        names = [n for n in R.OMNI_REGISTERS if n.startswith("OMNI_CNT_")]
+        return {n[len("OMNI_CNT_"):].lower(): await self.read(n) for n in names}

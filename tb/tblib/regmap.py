@@ -4,7 +4,8 @@ Word addresses ``REG_<NAME>``; per-node registers ``REG_NODE_*`` are slot 0, slo
 ``k * NODE_STRIDE`` (:func:`node_addr`). Single-bit fields are masks ``<REG>_<FIELD>``,
 wider ones ``<REG>_<FIELD>_MASK``/``_SHIFT``; reset words ``<REG>_RESET``. :data:`REGISTERS`
 describes every register (access, reset, fields) for code that iterates over the map;
-:data:`PDO_REGISTERS` the PDO engine's registers inside the ``PDO_WIN`` window.
+:data:`PDO_REGISTERS` the PDO engine's registers inside the ``PDO_WIN`` window,
+:data:`OMNI_REGISTERS` the Omni-ID engine's registers in the same window (CTRL.OMNI).
 """
 
 from __future__ import annotations
@@ -96,6 +97,48 @@ REG_PDO_CNT_MISSED = 0xD4
 REG_PDO_CNT_LATE = 0xD5
 REG_PDO_CNT_UNEXPECTED = 0xD6
 
+# Omni-ID engine bank of the same window (CTRL.OMNI = 1) and its registers
+REG_OMNI_WIN = 0xC0
+OMNI_WIN_WORDS = 64
+REG_OMNI_INFO = 0xC0
+REG_OMNI_CFG = 0xC1
+REG_OMNI_CTRL = 0xC2
+REG_OMNI_STATUS = 0xC3
+REG_OMNI_SYNC_K = 0xC4
+REG_OMNI_POLL = 0xC5
+REG_OMNI_QUERY_WIN = 0xC6
+REG_OMNI_CYCLE = 0xC7
+REG_OMNI_SP01 = 0xC8
+REG_OMNI_SP23 = 0xC9
+REG_OMNI_SP45 = 0xCA
+REG_OMNI_SP67 = 0xCB
+REG_OMNI_NMT = 0xCC
+REG_OMNI_PARAM_HDR = 0xCD
+REG_OMNI_PARAM_LO = 0xCE
+REG_OMNI_PARAM_HI = 0xCF
+REG_OMNI_SEL = 0xD0
+REG_OMNI_SLOT_CFG = 0xD1
+REG_OMNI_FB_LO = 0xD2
+REG_OMNI_FB_HI = 0xD3
+REG_OMNI_FB_INFO = 0xD4
+REG_OMNI_SLOT_ERR = 0xD5
+REG_OMNI_FB_NEW = 0xD6
+REG_OMNI_ALIVE = 0xD7
+REG_OMNI_MISSING = 0xD8
+REG_OMNI_PMB_INFO = 0xD9
+REG_OMNI_PMB_LO = 0xDA
+REG_OMNI_PMB_HI = 0xDB
+REG_OMNI_BUS_BITS = 0xDC
+REG_OMNI_CNT_FB_RX = 0xE0
+REG_OMNI_CNT_LEN_ERR = 0xE1
+REG_OMNI_CNT_UNEXPECTED = 0xE2
+REG_OMNI_CNT_MISSED = 0xE3
+REG_OMNI_CNT_NODE_MISSING = 0xE4
+REG_OMNI_CNT_REFUSED = 0xE5
+REG_OMNI_CNT_TX = 0xE6
+REG_OMNI_CNT_LATE = 0xE7
+REG_OMNI_CNT_PARAM_RX = 0xE8
+
 # ID
 ID_VALUE_SHIFT = 0
 ID_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
@@ -106,6 +149,7 @@ VERSION_MAJOR_SHIFT = 16
 VERSION_MAJOR_MASK = 0xFFFF0000  # bits 31:16, RO
 # CTRL
 CTRL_SYNC_EN = 0x1  # bit 0, RW
+CTRL_OMNI = 0x2  # bit 1, RW
 CTRL_REINIT = 0x100  # bit 8, pulse
 CTRL_CLR_COUNTERS = 0x200  # bit 9, pulse
 # STATUS
@@ -380,6 +424,163 @@ PDO_CNT_LATE_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 # PDO_CNT_UNEXPECTED
 PDO_CNT_UNEXPECTED_VALUE_SHIFT = 0
 PDO_CNT_UNEXPECTED_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_INFO
+OMNI_INFO_N_SLOTS_SHIFT = 0
+OMNI_INFO_N_SLOTS_MASK = 0xF  # bits 3:0, RO
+# OMNI_CFG
+OMNI_CFG_MASTER_ID_SHIFT = 0
+OMNI_CFG_MASTER_ID_MASK = 0xFF  # bits 7:0, RW
+OMNI_CFG_N_AXES_SHIFT = 8
+OMNI_CFG_N_AXES_MASK = 0xF00  # bits 11:8, RW
+OMNI_CFG_BCAST_4X2 = 0x1000  # bit 12, RW
+OMNI_CFG_SENDER = 0x2000  # bit 13, RW
+OMNI_CFG_SYNC_MODE = 0x4000  # bit 14, RW
+OMNI_CFG_STOP_ON_MISSING = 0x8000  # bit 15, RW
+# OMNI_CTRL
+OMNI_CTRL_COMMIT = 0x1  # bit 0, pulse
+OMNI_CTRL_PARAM_SEND = 0x2  # bit 1, pulse
+OMNI_CTRL_CLR_COUNTERS = 0x4  # bit 2, pulse
+# OMNI_STATUS
+OMNI_STATUS_PENDING = 0x1  # bit 0, RO
+OMNI_STATUS_INFEASIBLE = 0x2  # bit 1, RO
+OMNI_STATUS_CFG_ERR = 0x4  # bit 2, RO
+OMNI_STATUS_NMT_BUSY = 0x8  # bit 3, RO
+OMNI_STATUS_PARAM_BUSY = 0x10  # bit 4, RO
+OMNI_STATUS_QUERY_OPEN = 0x20  # bit 5, RO
+OMNI_STATUS_STOP_DUE = 0x40  # bit 6, RO
+OMNI_STATUS_ENABLED = 0x80  # bit 7, RO
+# OMNI_SYNC_K
+OMNI_SYNC_K_K_SHIFT = 0
+OMNI_SYNC_K_K_MASK = 0xFFFF  # bits 15:0, RW
+# OMNI_POLL
+OMNI_POLL_M_SHIFT = 0
+OMNI_POLL_M_MASK = 0xFFFF  # bits 15:0, RW
+# OMNI_QUERY_WIN
+OMNI_QUERY_WIN_US_SHIFT = 0
+OMNI_QUERY_WIN_US_MASK = 0xFFFF  # bits 15:0, RW
+# OMNI_CYCLE
+OMNI_CYCLE_COUNT_SHIFT = 0
+OMNI_CYCLE_COUNT_MASK = 0xFFFF  # bits 15:0, RO
+# OMNI_SP01
+OMNI_SP01_AXIS0_SHIFT = 0
+OMNI_SP01_AXIS0_MASK = 0xFFFF  # bits 15:0, RW
+OMNI_SP01_AXIS1_SHIFT = 16
+OMNI_SP01_AXIS1_MASK = 0xFFFF0000  # bits 31:16, RW
+# OMNI_SP23
+OMNI_SP23_AXIS2_SHIFT = 0
+OMNI_SP23_AXIS2_MASK = 0xFFFF  # bits 15:0, RW
+OMNI_SP23_AXIS3_SHIFT = 16
+OMNI_SP23_AXIS3_MASK = 0xFFFF0000  # bits 31:16, RW
+# OMNI_SP45
+OMNI_SP45_AXIS4_SHIFT = 0
+OMNI_SP45_AXIS4_MASK = 0xFFFF  # bits 15:0, RW
+OMNI_SP45_AXIS5_SHIFT = 16
+OMNI_SP45_AXIS5_MASK = 0xFFFF0000  # bits 31:16, RW
+# OMNI_SP67
+OMNI_SP67_AXIS6_SHIFT = 0
+OMNI_SP67_AXIS6_MASK = 0xFFFF  # bits 15:0, RW
+OMNI_SP67_AXIS7_SHIFT = 16
+OMNI_SP67_AXIS7_MASK = 0xFFFF0000  # bits 31:16, RW
+# OMNI_NMT
+OMNI_NMT_NODE_SHIFT = 0
+OMNI_NMT_NODE_MASK = 0xFF  # bits 7:0, WO
+OMNI_NMT_STATE = 0x100  # bit 8, WO
+# OMNI_PARAM_HDR
+OMNI_PARAM_HDR_NODE_SHIFT = 0
+OMNI_PARAM_HDR_NODE_MASK = 0xFF  # bits 7:0, RW
+OMNI_PARAM_HDR_TYPE_SHIFT = 8
+OMNI_PARAM_HDR_TYPE_MASK = 0xFF00  # bits 15:8, RW
+OMNI_PARAM_HDR_DLC_SHIFT = 16
+OMNI_PARAM_HDR_DLC_MASK = 0xF0000  # bits 19:16, RW
+# OMNI_PARAM_LO
+OMNI_PARAM_LO_DATA_SHIFT = 0
+OMNI_PARAM_LO_DATA_MASK = 0xFFFFFFFF  # bits 31:0, RW
+# OMNI_PARAM_HI
+OMNI_PARAM_HI_DATA_SHIFT = 0
+OMNI_PARAM_HI_DATA_MASK = 0xFFFF  # bits 15:0, RW
+# OMNI_SEL
+OMNI_SEL_SLOT_SHIFT = 0
+OMNI_SEL_SLOT_MASK = 0x7  # bits 2:0, RW
+OMNI_SEL_ACK = 0x100  # bit 8, pulse
+OMNI_SEL_NEW = 0x200  # bit 9, RO
+# OMNI_SLOT_CFG
+OMNI_SLOT_CFG_NODE_SHIFT = 0
+OMNI_SLOT_CFG_NODE_MASK = 0xFF  # bits 7:0, RW
+OMNI_SLOT_CFG_FC_SHIFT = 8
+OMNI_SLOT_CFG_FC_MASK = 0x700  # bits 10:8, RW
+OMNI_SLOT_CFG_VALID = 0x8000  # bit 15, RW
+OMNI_SLOT_CFG_DLC_SHIFT = 16
+OMNI_SLOT_CFG_DLC_MASK = 0xF0000  # bits 19:16, RW
+# OMNI_FB_LO
+OMNI_FB_LO_DATA_SHIFT = 0
+OMNI_FB_LO_DATA_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_FB_HI
+OMNI_FB_HI_DATA_SHIFT = 0
+OMNI_FB_HI_DATA_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_FB_INFO
+OMNI_FB_INFO_SEQ_SHIFT = 0
+OMNI_FB_INFO_SEQ_MASK = 0xFFFF  # bits 15:0, RO
+OMNI_FB_INFO_CYCLE_SHIFT = 16
+OMNI_FB_INFO_CYCLE_MASK = 0xFFFF0000  # bits 31:16, RO
+# OMNI_SLOT_ERR
+OMNI_SLOT_ERR_LEN_ERR_SHIFT = 0
+OMNI_SLOT_ERR_LEN_ERR_MASK = 0xFFFF  # bits 15:0, RO
+OMNI_SLOT_ERR_MISSED_SHIFT = 16
+OMNI_SLOT_ERR_MISSED_MASK = 0xFFFF0000  # bits 31:16, RO
+# OMNI_FB_NEW
+OMNI_FB_NEW_NEW_SHIFT = 0
+OMNI_FB_NEW_NEW_MASK = 0xFF  # bits 7:0, W1C
+# OMNI_ALIVE
+OMNI_ALIVE_ALIVE_SHIFT = 0
+OMNI_ALIVE_ALIVE_MASK = 0xFF  # bits 7:0, RO
+# OMNI_MISSING
+OMNI_MISSING_MISSING_SHIFT = 0
+OMNI_MISSING_MISSING_MASK = 0xFF  # bits 7:0, W1C
+# OMNI_PMB_INFO
+OMNI_PMB_INFO_SENDER_SHIFT = 0
+OMNI_PMB_INFO_SENDER_MASK = 0xFF  # bits 7:0, RO
+OMNI_PMB_INFO_TYPE_SHIFT = 8
+OMNI_PMB_INFO_TYPE_MASK = 0xFF00  # bits 15:8, RO
+OMNI_PMB_INFO_DLC_SHIFT = 16
+OMNI_PMB_INFO_DLC_MASK = 0xF0000  # bits 19:16, RO
+OMNI_PMB_INFO_OVERRUN = 0x40000000  # bit 30, W1C
+OMNI_PMB_INFO_NEW = 0x80000000  # bit 31, W1C
+# OMNI_PMB_LO
+OMNI_PMB_LO_DATA_SHIFT = 0
+OMNI_PMB_LO_DATA_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_PMB_HI
+OMNI_PMB_HI_DATA_SHIFT = 0
+OMNI_PMB_HI_DATA_MASK = 0xFFFF  # bits 15:0, RO
+# OMNI_BUS_BITS
+OMNI_BUS_BITS_BITS_SHIFT = 0
+OMNI_BUS_BITS_BITS_MASK = 0xFFFF  # bits 15:0, RO
+# OMNI_CNT_FB_RX
+OMNI_CNT_FB_RX_VALUE_SHIFT = 0
+OMNI_CNT_FB_RX_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_LEN_ERR
+OMNI_CNT_LEN_ERR_VALUE_SHIFT = 0
+OMNI_CNT_LEN_ERR_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_UNEXPECTED
+OMNI_CNT_UNEXPECTED_VALUE_SHIFT = 0
+OMNI_CNT_UNEXPECTED_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_MISSED
+OMNI_CNT_MISSED_VALUE_SHIFT = 0
+OMNI_CNT_MISSED_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_NODE_MISSING
+OMNI_CNT_NODE_MISSING_VALUE_SHIFT = 0
+OMNI_CNT_NODE_MISSING_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_REFUSED
+OMNI_CNT_REFUSED_VALUE_SHIFT = 0
+OMNI_CNT_REFUSED_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_TX
+OMNI_CNT_TX_VALUE_SHIFT = 0
+OMNI_CNT_TX_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_LATE
+OMNI_CNT_LATE_VALUE_SHIFT = 0
+OMNI_CNT_LATE_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
+# OMNI_CNT_PARAM_RX
+OMNI_CNT_PARAM_RX_VALUE_SHIFT = 0
+OMNI_CNT_PARAM_RX_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 
 # reset words
 ID_RESET = 0x434F3031
@@ -417,6 +618,19 @@ PDO_CFG_RESET = 0x00000000
 PDO_INHIBIT_RESET = 0x00000000
 PDO_DATA_LO_RESET = 0x00000000
 PDO_DATA_HI_RESET = 0x00000000
+OMNI_CTRL_RESET = 0x00000000
+OMNI_SYNC_K_RESET = 0x00000001
+OMNI_POLL_RESET = 0x00000000
+OMNI_QUERY_WIN_RESET = 0x000003E8
+OMNI_SP01_RESET = 0x00000000
+OMNI_SP23_RESET = 0x00000000
+OMNI_SP45_RESET = 0x00000000
+OMNI_SP67_RESET = 0x00000000
+OMNI_NMT_RESET = 0x00000000
+OMNI_PARAM_HDR_RESET = 0x00000000
+OMNI_PARAM_LO_RESET = 0x00000000
+OMNI_PARAM_HI_RESET = 0x00000000
+OMNI_SLOT_CFG_RESET = 0x00000000
 
 
 class FieldInfo(NamedTuple):
@@ -452,6 +666,7 @@ REGISTERS: dict[str, RegInfo] = {
         addr=0x02, access="RW + pulse", reset=0x0, stride=0,
         fields={
             "SYNC_EN": FieldInfo(0, 0, "RW", 0x0),
+            "OMNI": FieldInfo(1, 1, "RW", 0x0),
             "REINIT": FieldInfo(8, 8, "pulse", 0x0),
             "CLR_COUNTERS": FieldInfo(9, 9, "pulse", 0x0),
         },
@@ -911,6 +1126,270 @@ PDO_REGISTERS: dict[str, RegInfo] = {
     ),
 }
 
+#: registers of the Omni-ID engine bank of the same window (CTRL.OMNI = 1)
+OMNI_REGISTERS: dict[str, RegInfo] = {
+    "OMNI_INFO": RegInfo(
+        addr=0xC0, access="RO", reset=None, stride=0,
+        fields={
+            "N_SLOTS": FieldInfo(3, 0, "RO", None),
+        },
+    ),
+    "OMNI_CFG": RegInfo(
+        addr=0xC1, access="RW", reset=None, stride=0,
+        fields={
+            "MASTER_ID": FieldInfo(7, 0, "RW", None),
+            "N_AXES": FieldInfo(11, 8, "RW", 0x0),
+            "BCAST_4X2": FieldInfo(12, 12, "RW", 0x0),
+            "SENDER": FieldInfo(13, 13, "RW", 0x0),
+            "SYNC_MODE": FieldInfo(14, 14, "RW", 0x0),
+            "STOP_ON_MISSING": FieldInfo(15, 15, "RW", 0x0),
+        },
+    ),
+    "OMNI_CTRL": RegInfo(
+        addr=0xC2, access="pulse", reset=0x0, stride=0,
+        fields={
+            "COMMIT": FieldInfo(0, 0, "pulse", 0x0),
+            "PARAM_SEND": FieldInfo(1, 1, "pulse", 0x0),
+            "CLR_COUNTERS": FieldInfo(2, 2, "pulse", 0x0),
+        },
+    ),
+    "OMNI_STATUS": RegInfo(
+        addr=0xC3, access="RO", reset=None, stride=0,
+        fields={
+            "PENDING": FieldInfo(0, 0, "RO", None),
+            "INFEASIBLE": FieldInfo(1, 1, "RO", None),
+            "CFG_ERR": FieldInfo(2, 2, "RO", None),
+            "NMT_BUSY": FieldInfo(3, 3, "RO", None),
+            "PARAM_BUSY": FieldInfo(4, 4, "RO", None),
+            "QUERY_OPEN": FieldInfo(5, 5, "RO", None),
+            "STOP_DUE": FieldInfo(6, 6, "RO", None),
+            "ENABLED": FieldInfo(7, 7, "RO", None),
+        },
+    ),
+    "OMNI_SYNC_K": RegInfo(
+        addr=0xC4, access="RW", reset=0x1, stride=0,
+        fields={
+            "K": FieldInfo(15, 0, "RW", 0x1),
+        },
+    ),
+    "OMNI_POLL": RegInfo(
+        addr=0xC5, access="RW", reset=0x0, stride=0,
+        fields={
+            "M": FieldInfo(15, 0, "RW", 0x0),
+        },
+    ),
+    "OMNI_QUERY_WIN": RegInfo(
+        addr=0xC6, access="RW", reset=0x3E8, stride=0,
+        fields={
+            "US": FieldInfo(15, 0, "RW", 0x3E8),
+        },
+    ),
+    "OMNI_CYCLE": RegInfo(
+        addr=0xC7, access="RO", reset=None, stride=0,
+        fields={
+            "COUNT": FieldInfo(15, 0, "RO", None),
+        },
+    ),
+    "OMNI_SP01": RegInfo(
+        addr=0xC8, access="RW", reset=0x0, stride=0,
+        fields={
+            "AXIS0": FieldInfo(15, 0, "RW", 0x0),
+            "AXIS1": FieldInfo(31, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_SP23": RegInfo(
+        addr=0xC9, access="RW", reset=0x0, stride=0,
+        fields={
+            "AXIS2": FieldInfo(15, 0, "RW", 0x0),
+            "AXIS3": FieldInfo(31, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_SP45": RegInfo(
+        addr=0xCA, access="RW", reset=0x0, stride=0,
+        fields={
+            "AXIS4": FieldInfo(15, 0, "RW", 0x0),
+            "AXIS5": FieldInfo(31, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_SP67": RegInfo(
+        addr=0xCB, access="RW", reset=0x0, stride=0,
+        fields={
+            "AXIS6": FieldInfo(15, 0, "RW", 0x0),
+            "AXIS7": FieldInfo(31, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_NMT": RegInfo(
+        addr=0xCC, access="WO", reset=0x0, stride=0,
+        fields={
+            "NODE": FieldInfo(7, 0, "WO", None),
+            "STATE": FieldInfo(8, 8, "WO", None),
+        },
+    ),
+    "OMNI_PARAM_HDR": RegInfo(
+        addr=0xCD, access="RW", reset=0x0, stride=0,
+        fields={
+            "NODE": FieldInfo(7, 0, "RW", 0x0),
+            "TYPE": FieldInfo(15, 8, "RW", 0x0),
+            "DLC": FieldInfo(19, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_PARAM_LO": RegInfo(
+        addr=0xCE, access="RW", reset=0x0, stride=0,
+        fields={
+            "DATA": FieldInfo(31, 0, "RW", 0x0),
+        },
+    ),
+    "OMNI_PARAM_HI": RegInfo(
+        addr=0xCF, access="RW", reset=0x0, stride=0,
+        fields={
+            "DATA": FieldInfo(15, 0, "RW", 0x0),
+        },
+    ),
+    "OMNI_SEL": RegInfo(
+        addr=0xD0, access="RW + pulse", reset=None, stride=0,
+        fields={
+            "SLOT": FieldInfo(2, 0, "RW", 0x0),
+            "ACK": FieldInfo(8, 8, "pulse", 0x0),
+            "NEW": FieldInfo(9, 9, "RO", None),
+        },
+    ),
+    "OMNI_SLOT_CFG": RegInfo(
+        addr=0xD1, access="RW", reset=0x0, stride=0,
+        fields={
+            "NODE": FieldInfo(7, 0, "RW", 0x0),
+            "FC": FieldInfo(10, 8, "RW", 0x0),
+            "VALID": FieldInfo(15, 15, "RW", 0x0),
+            "DLC": FieldInfo(19, 16, "RW", 0x0),
+        },
+    ),
+    "OMNI_FB_LO": RegInfo(
+        addr=0xD2, access="RO", reset=None, stride=0,
+        fields={
+            "DATA": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_FB_HI": RegInfo(
+        addr=0xD3, access="RO", reset=None, stride=0,
+        fields={
+            "DATA": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_FB_INFO": RegInfo(
+        addr=0xD4, access="RO", reset=None, stride=0,
+        fields={
+            "SEQ": FieldInfo(15, 0, "RO", None),
+            "CYCLE": FieldInfo(31, 16, "RO", None),
+        },
+    ),
+    "OMNI_SLOT_ERR": RegInfo(
+        addr=0xD5, access="RO", reset=None, stride=0,
+        fields={
+            "LEN_ERR": FieldInfo(15, 0, "RO", None),
+            "MISSED": FieldInfo(31, 16, "RO", None),
+        },
+    ),
+    "OMNI_FB_NEW": RegInfo(
+        addr=0xD6, access="W1C", reset=None, stride=0,
+        fields={
+            "NEW": FieldInfo(7, 0, "W1C", None),
+        },
+    ),
+    "OMNI_ALIVE": RegInfo(
+        addr=0xD7, access="RO", reset=None, stride=0,
+        fields={
+            "ALIVE": FieldInfo(7, 0, "RO", None),
+        },
+    ),
+    "OMNI_MISSING": RegInfo(
+        addr=0xD8, access="W1C", reset=None, stride=0,
+        fields={
+            "MISSING": FieldInfo(7, 0, "W1C", None),
+        },
+    ),
+    "OMNI_PMB_INFO": RegInfo(
+        addr=0xD9, access="RO + W1C", reset=None, stride=0,
+        fields={
+            "SENDER": FieldInfo(7, 0, "RO", None),
+            "TYPE": FieldInfo(15, 8, "RO", None),
+            "DLC": FieldInfo(19, 16, "RO", None),
+            "OVERRUN": FieldInfo(30, 30, "W1C", None),
+            "NEW": FieldInfo(31, 31, "W1C", None),
+        },
+    ),
+    "OMNI_PMB_LO": RegInfo(
+        addr=0xDA, access="RO", reset=None, stride=0,
+        fields={
+            "DATA": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_PMB_HI": RegInfo(
+        addr=0xDB, access="RO", reset=None, stride=0,
+        fields={
+            "DATA": FieldInfo(15, 0, "RO", None),
+        },
+    ),
+    "OMNI_BUS_BITS": RegInfo(
+        addr=0xDC, access="RO", reset=None, stride=0,
+        fields={
+            "BITS": FieldInfo(15, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_FB_RX": RegInfo(
+        addr=0xE0, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_LEN_ERR": RegInfo(
+        addr=0xE1, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_UNEXPECTED": RegInfo(
+        addr=0xE2, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_MISSED": RegInfo(
+        addr=0xE3, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_NODE_MISSING": RegInfo(
+        addr=0xE4, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_REFUSED": RegInfo(
+        addr=0xE5, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_TX": RegInfo(
+        addr=0xE6, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_LATE": RegInfo(
+        addr=0xE7, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+    "OMNI_CNT_PARAM_RX": RegInfo(
+        addr=0xE8, access="RO", reset=None, stride=0,
+        fields={
+            "VALUE": FieldInfo(31, 0, "RO", None),
+        },
+    ),
+}
+
 
 def node_addr(reg: int | str, slot: int) -> int:
     """Address of per-node register ``reg`` (address of slot 0 or name) for ``slot``."""
@@ -933,7 +1412,9 @@ def addr(name: str, slot: int | None = None) -> int:
 
 
 def _info(reg: str) -> RegInfo:
-    return REGISTERS[reg] if reg in REGISTERS else PDO_REGISTERS[reg]
+    if reg in REGISTERS:
+        return REGISTERS[reg]
+    return PDO_REGISTERS[reg] if reg in PDO_REGISTERS else OMNI_REGISTERS[reg]
 
 
 def get_field(reg: str, field: str, value: int) -> int:

@@ -1,0 +1,1607 @@
+-- =================================================================================================
+-- Title    : omni_engine
+-- Project  : canopen_master - open-source CANopen master IP core (MCP2510 over SPI)
+-- SPDX-License-Identifier: Apache-2.0
+-- =================================================================================================
+-- Module:
+--   The Omni-ID protocol engine of the master (NCTU 2007 thesis, digest
+--   shared/spec/nctu_omni_sync.md section 2): 11-bit id = function code (3) << 8 | node (8).
+--   Sibling of canopen_pdo_engine: in Omni-ID mode (CTRL.OMNI) the core hands it every received
+--   frame (St5), sends its frames (St8), preloads its cycle frame into TXB2 for the exact-period
+--   cycle instant and maps the host window C0h..FFh to its register port.
+-- Purpose:
+--   * Cycle frame: the broadcast of N_AXES set-points (fc 001, 1 byte per axis, optional
+--     sender byte; or fc 100, 2 bytes per axis), highest axis first. Set-points are double
+--     buffered: COMMIT copies the staging registers into a pending set that becomes the active
+--     set at the next cyc_take_i (the preload of the cycle frame), so a frame never mixes two
+--     commits. SYNC_MODE 1: the cycle frame of every K-th cycle is the Omni SYNC (080h, DLC 0)
+--     and that cycle's broadcast follows through tx_req_o right after the cycle instant.
+--   * Frame queue (tx_req_o / tx_ack_i, one frame at a time, fixed priority): NMT stop all
+--     after a missing node, host NMT, broadcast after a SYNC, node query, query reply,
+--     parameter frame.
+--   * Node table (N_SLOTS): feedback frames (fc 010/011/101/110 to MASTER_ID, byte 0 = the
+--     slot's node) stored in a RAM with sequence number and cycle counter; length errors,
+--     missed cycles; node query every M cycles with a reply window, ALIVE / MISSING bitmaps.
+--   * Parameter frames (fc 111) out, parameter mailbox in.
+--   * Feasibility: worst-case bits of one cycle against the period (feasible_o).
+--   Registers: OMNI_* in canopen_regs_pkg (scripts/regmap.py). Timing and decisions:
+--   docs/omni_engine.md.
+-- =================================================================================================
+
+library ieee;
+    use ieee.std_logic_1164.all;
+    use ieee.numeric_std.all;
+
+library work;
+    use work.canopen_regs_pkg.all;
+    use work.canopen_util_pkg.all;
+
+entity omni_engine is
+    generic (
+        MASTER_ID_DEFAULT : natural range 1 to 255 := 2;        -- OMNI_CFG.MASTER_ID at reset
+        N_SLOTS           : positive range 1 to 8  := 8;        -- node-table slots
+        BITRATE_BPS       : positive               := 1_000_000 -- CAN bit rate (feasibility)
+    );
+    port (
+        -- clock and reset
+        clk_i   : in    std_logic; -- system clock
+        rst_n_i : in    std_logic; -- async reset, active low (synced)
+        -- mode and timing from the core
+        enable_i    : in    std_logic;                     -- Omni-ID mode on (CTRL.OMNI)
+        tick_us_i   : in    std_logic;                     -- 1-cycle strobe every us
+        period_us_i : in    std_logic_vector(31 downto 0); -- cycle period (SYNC_PERIOD_US)
+        -- cycle frame (TXB2, fired at the cycle instant)
+        cycle_i    : in    std_logic;                     -- strobe: the cycle frame was fired
+        cyc_id_o   : out   std_logic_vector(10 downto 0); -- frame for the next cycle instant
+        cyc_dlc_o  : out   std_logic_vector(3 downto 0);  -- its DLC
+        cyc_data_o : out   std_logic_vector(63 downto 0); -- its data, byte k at 8k+7..8k
+        cyc_take_i : in    std_logic;                     -- strobe: the core copied cyc_*
+        feasible_o : out   std_logic;                     -- '0': the cycle cannot fit
+        -- host register window (C0h..FFh with CTRL.OMNI = 1)
+        reg_addr_i  : in    std_logic_vector(5 downto 0);  -- word offset in the window
+        reg_we_i    : in    std_logic;                     -- write reg_wdata_i
+        reg_wdata_i : in    std_logic_vector(31 downto 0); -- write data
+        reg_rdata_o : out   std_logic_vector(31 downto 0); -- word at reg_addr_i, 1 cycle later
+        -- received frame (from the FSM, St5)
+        rx_valid_i      : in    std_logic;                     -- strobe: process this frame
+        rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
+        rx_rtr_i        : in    std_logic;                     -- remote frame
+        rx_dlc_i        : in    std_logic_vector(3 downto 0);  -- data length code
+        rx_data_i       : in    std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
+        rx_done_o       : out   std_logic;                     -- strobe: frame processed
+        rx_reply_o      : out   std_logic;                     -- with rx_done_o: reply queued
+        rx_unexpected_o : out   std_logic;                     -- with rx_done_o: nobody's
+        -- frame to transmit (towards the FSM, St8)
+        tx_req_o  : out   std_logic;                     -- level: a frame is waiting
+        tx_id_o   : out   std_logic_vector(10 downto 0); -- identifier
+        tx_rtr_o  : out   std_logic;                     -- remote frame
+        tx_dlc_o  : out   std_logic_vector(3 downto 0);  -- data length code
+        tx_data_o : out   std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
+        tx_ack_i  : in    std_logic;                     -- strobe: frame taken
+        -- host interrupt event
+        ev_o : out   std_logic -- strobe: feedback stored, node missing, parameter received
+    );
+end entity omni_engine;
+
+architecture rtl of omni_engine is
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Protocol constants (digest 2.1-2.4; A3, A6, A12)
+    -- ---------------------------------------------------------------------------------------------
+    constant fc_nmt_c     : std_logic_vector(2 downto 0)  := "000";         -- NMT, query, replies
+    constant fc_bc8_c     : std_logic_vector(2 downto 0)  := "001";         -- broadcast 8 x 1 byte
+    constant fc_bc4_c     : std_logic_vector(2 downto 0)  := "100";         -- broadcast 4 x 2 bytes
+    constant fc_param_c   : std_logic_vector(2 downto 0)  := "111";         -- parameter setup
+    constant sync_id_c    : std_logic_vector(10 downto 0) := "000" & x"80"; -- Omni SYNC (A6)
+    constant nmt_dlc_c    : std_logic_vector(3 downto 0)  := x"2";          -- [node][state]
+    constant param_min_c  : natural                       := 2;             -- [sender][type]
+    constant max_axes_c   : natural                       := 8;             -- staging registers
+    constant ns_per_s_c   : natural                       := 1_000_000_000;
+    constant ns_per_us_c  : natural                       := 1000;
+    constant ns_per_bit_c : natural                       := ns_per_s_c / BITRATE_BPS;
+    constant fram_w_c     : positive                      := 64 + 16 + 16;  -- data, seq, cycle
+
+    -- no slot flagged
+    constant zero_slots_c : std_logic_vector(N_SLOTS - 1 downto 0) := (others => '0');
+
+    -- register window offsets (address - REG_OMNI_WIN_C)
+    constant off_info_c   : natural := REG_OMNI_INFO_C - REG_OMNI_WIN_C;
+    constant off_cfg_c    : natural := REG_OMNI_CFG_C - REG_OMNI_WIN_C;
+    constant off_ctrl_c   : natural := REG_OMNI_CTRL_C - REG_OMNI_WIN_C;
+    constant off_stat_c   : natural := REG_OMNI_STATUS_C - REG_OMNI_WIN_C;
+    constant off_k_c      : natural := REG_OMNI_SYNC_K_C - REG_OMNI_WIN_C;
+    constant off_poll_c   : natural := REG_OMNI_POLL_C - REG_OMNI_WIN_C;
+    constant off_qwin_c   : natural := REG_OMNI_QUERY_WIN_C - REG_OMNI_WIN_C;
+    constant off_cycle_c  : natural := REG_OMNI_CYCLE_C - REG_OMNI_WIN_C;
+    constant off_sp_c     : natural := REG_OMNI_SP01_C - REG_OMNI_WIN_C;
+    constant off_nmt_c    : natural := REG_OMNI_NMT_C - REG_OMNI_WIN_C;
+    constant off_phdr_c   : natural := REG_OMNI_PARAM_HDR_C - REG_OMNI_WIN_C;
+    constant off_plo_c    : natural := REG_OMNI_PARAM_LO_C - REG_OMNI_WIN_C;
+    constant off_phi_c    : natural := REG_OMNI_PARAM_HI_C - REG_OMNI_WIN_C;
+    constant off_sel_c    : natural := REG_OMNI_SEL_C - REG_OMNI_WIN_C;
+    constant off_scfg_c   : natural := REG_OMNI_SLOT_CFG_C - REG_OMNI_WIN_C;
+    constant off_fblo_c   : natural := REG_OMNI_FB_LO_C - REG_OMNI_WIN_C;
+    constant off_fbhi_c   : natural := REG_OMNI_FB_HI_C - REG_OMNI_WIN_C;
+    constant off_fbinfo_c : natural := REG_OMNI_FB_INFO_C - REG_OMNI_WIN_C;
+    constant off_serr_c   : natural := REG_OMNI_SLOT_ERR_C - REG_OMNI_WIN_C;
+    constant off_fbnew_c  : natural := REG_OMNI_FB_NEW_C - REG_OMNI_WIN_C;
+    constant off_alive_c  : natural := REG_OMNI_ALIVE_C - REG_OMNI_WIN_C;
+    constant off_miss_c   : natural := REG_OMNI_MISSING_C - REG_OMNI_WIN_C;
+    constant off_pmbi_c   : natural := REG_OMNI_PMB_INFO_C - REG_OMNI_WIN_C;
+    constant off_pmblo_c  : natural := REG_OMNI_PMB_LO_C - REG_OMNI_WIN_C;
+    constant off_pmbhi_c  : natural := REG_OMNI_PMB_HI_C - REG_OMNI_WIN_C;
+    constant off_bits_c   : natural := REG_OMNI_BUS_BITS_C - REG_OMNI_WIN_C;
+    constant off_cnt_c    : natural := REG_OMNI_CNT_FB_RX_C - REG_OMNI_WIN_C;
+    -- counters, in address order from OMNI_CNT_FB_RX
+    constant cnt_fb_c     : natural := 0;
+    constant cnt_len_c    : natural := 1;
+    constant cnt_unexp_c  : natural := 2;
+    constant cnt_miss_c   : natural := 3;
+    constant cnt_nmiss_c  : natural := 4;
+    constant cnt_refuse_c : natural := 5;
+    constant cnt_tx_c     : natural := 6;
+    constant cnt_late_c   : natural := 7;
+    constant cnt_prx_c    : natural := 8;
+    constant cnt_num_c    : natural := 9;
+
+    type nat_arr_t is array (natural range <>) of natural;
+
+    -- worst-case bits of a standard data frame with n data bytes, intermission included:
+    -- 44 + 8n + floor((34 + 8n - 1) / 4) + 3
+
+    function wc_table return nat_arr_t is
+
+        variable t : nat_arr_t(0 to 8);
+
+    begin
+
+        for n in 0 to 8 loop
+
+            t(n) := 44 + 8 * n + (34 + 8 * n - 1) / 4 + 3;
+
+        end loop;
+
+        return t;
+
+    end function wc_table;
+
+    constant wc_bits_c : nat_arr_t(0 to 8) := wc_table;
+
+    function check_config return boolean is
+    begin
+
+        assert REG_OMNI_WIN_WORDS_C = 64
+            report "omni_engine: the register window must be 64 words (6-bit offset)"
+            severity failure;
+        assert REG_OMNI_SP67_C - REG_OMNI_SP01_C = 3
+            report "omni_engine: OMNI_SP01 .. OMNI_SP67 are not consecutive"
+            severity failure;
+        assert REG_OMNI_CNT_PARAM_RX_C - REG_OMNI_CNT_FB_RX_C = cnt_num_c - 1
+            report "omni_engine: OMNI_CNT_FB_RX .. OMNI_CNT_PARAM_RX are not consecutive"
+            severity failure;
+        assert ns_per_s_c mod BITRATE_BPS = 0
+            report "omni_engine: BITRATE_BPS must divide 10**9 (whole ns per bit)"
+            severity failure;
+        assert false
+            report "omni_engine: " & integer'image(N_SLOTS) & " slots, master id "
+                   & integer'image(MASTER_ID_DEFAULT) & ", " & integer'image(ns_per_bit_c)
+                   & " ns per bit, frames " & integer'image(wc_bits_c(0)) & " .. "
+                   & integer'image(wc_bits_c(8)) & " bits worst case"
+            severity note;
+        return true;
+
+    end function check_config;
+
+    constant config_ok_c : boolean := check_config;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Types
+    -- ---------------------------------------------------------------------------------------------
+
+    type sp_arr_t is array (0 to max_axes_c - 1) of std_logic_vector(15 downto 0);
+
+    type u8_arr_t is array (natural range <>) of std_logic_vector(7 downto 0);
+
+    type fc_arr_t is array (natural range <>) of std_logic_vector(2 downto 0);
+
+    type nib_arr_t is array (natural range <>) of std_logic_vector(3 downto 0);
+
+    type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
+
+    type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
+
+    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 8;
+
+    type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
+
+    type tx_state_t is (
+        S_IDLE, -- the highest-priority due item starts a frame
+        S_WAIT  -- tx_req_o = 1 until tx_ack_i
+    );
+
+    type kind_t is (
+        K_STOP,  -- NMT stop all after a missing node (STOP_ON_MISSING)
+        K_NMT,   -- host NMT
+        K_BC,    -- broadcast after an Omni SYNC
+        K_QUERY, -- node query
+        K_REPLY, -- reply to another node's query
+        K_PARAM  -- parameter frame
+    );
+
+    type rx_state_t is (
+        S_RX_IDLE,  -- waiting for rx_valid_i
+        S_RX_MATCH, -- frame registered, classified
+        S_RX_REPLY  -- query received: waiting until the reply (or another frame) is presented
+    );
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Helpers
+    -- ---------------------------------------------------------------------------------------------
+
+    function is_off (addr : std_logic_vector(5 downto 0); off : natural) return boolean is
+    begin
+
+        return addr = std_logic_vector(to_unsigned(off, 6));
+
+    end function is_off;
+
+    -- the first dlc bytes of a frame, the others zero (DLC 9..15 means 8 bytes)
+
+    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
+        return std_logic_vector is
+
+        variable r : std_logic_vector(63 downto 0);
+
+    begin
+
+        r := v;
+
+        for j in 0 to 7 loop
+
+            if dlc(3) = '0' and unsigned(dlc(2 downto 0)) <= j then
+                r(8 * j + 7 downto 8 * j) := (others => '0');
+            end if;
+
+        end loop;
+
+        return r;
+
+    end function keep_bytes;
+
+    -- broadcast data (A1): [sender]? then the axes, highest first; 1 byte (low 8 bits) per axis,
+    -- or 2 bytes big-endian per axis (w2 = '1')
+
+    function bc_data (sp : sp_arr_t; n : natural; w2 : std_logic; snd : std_logic;
+        mid : std_logic_vector(7 downto 0)) return std_logic_vector is
+
+        variable r : std_logic_vector(63 downto 0);
+        variable s : natural range 0 to 1;
+
+    begin
+
+        r := (others => '0');
+        s := 0;
+
+        if w2 = '0' and snd = '1' then
+            r(7 downto 0) := mid;
+            s             := 1;
+        end if;
+
+        for j in 0 to 7 loop
+
+            for a in 0 to max_axes_c - 1 loop
+
+                if w2 = '0' then
+                    if j >= s and a + j = n - 1 + s then
+                        r(8 * j + 7 downto 8 * j) := sp(a)(7 downto 0);
+                    end if;
+                elsif a + j / 2 = n - 1 then
+                    if j mod 2 = 0 then
+                        r(8 * j + 7 downto 8 * j) := sp(a)(15 downto 8);
+                    else
+                        r(8 * j + 7 downto 8 * j) := sp(a)(7 downto 0);
+                    end if;
+                end if;
+
+            end loop;
+
+        end loop;
+
+        return r;
+
+    end function bc_data;
+
+    -- 0 or 1
+
+    function bit_int (b : std_logic) return natural is
+    begin
+
+        if b = '1' then
+            return 1;
+        end if;
+
+        return 0;
+
+    end function bit_int;
+
+    -- number of '1' bits
+
+    function ones (v : std_logic_vector) return natural is
+
+        variable c : natural range 0 to 8;
+
+    begin
+
+        c := 0;
+
+        for i in v'range loop
+
+            if v(i) = '1' then
+                c := c + 1;
+            end if;
+
+        end loop;
+
+        return c;
+
+    end function ones;
+
+    -- c + n, saturating at all ones
+
+    function sat_add (c : unsigned(31 downto 0); n : natural) return unsigned is
+
+        variable s : unsigned(32 downto 0);
+
+    begin
+
+        s := resize(c, 33) + n;
+
+        if s(32) = '1' then
+            return unsigned'(31 downto 0 => '1');
+        end if;
+
+        return s(31 downto 0);
+
+    end function sat_add;
+
+    -- worst-case bits of a frame with DLC d (9..15 count as 8)
+
+    function wc_of (d : std_logic_vector(3 downto 0)) return natural is
+    begin
+
+        if d(3) = '1' then
+            return wc_bits_c(8);
+        end if;
+
+        return wc_bits_c(to_integer(unsigned(d(2 downto 0))));
+
+    end function wc_of;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Configuration (host)
+    -- ---------------------------------------------------------------------------------------------
+    -- OMNI_CFG fields
+    signal master_id : std_logic_vector(7 downto 0);
+    signal n_axes    : std_logic_vector(3 downto 0);
+    signal bc4x2     : std_logic;
+    signal sender    : std_logic;
+    signal sync_mode : std_logic;
+    signal stop_miss : std_logic;
+    -- K, M, query window [us]
+    signal k_reg    : unsigned(15 downto 0);
+    signal m_reg    : unsigned(15 downto 0);
+    signal qwin_reg : unsigned(15 downto 0);
+    -- N_AXES out of range for the layout
+    signal cfg_err : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Set-points: staging (host), pending (COMMIT), active (applied at cyc_take_i)
+    -- ---------------------------------------------------------------------------------------------
+    signal staging  : sp_arr_t;
+    signal pend_set : sp_arr_t;
+    signal act_set  : sp_arr_t;
+    signal pending  : std_logic;
+    -- the set the next take activates; its broadcast frame
+    signal cur_set : sp_arr_t;
+    signal bc_id   : std_logic_vector(10 downto 0);
+    signal bc_dlc  : std_logic_vector(3 downto 0);
+    signal bc_dat  : std_logic_vector(63 downto 0);
+    -- the next cycle frame is the Omni SYNC
+    signal sync_now : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Cycle bookkeeping
+    -- ---------------------------------------------------------------------------------------------
+    -- enable_i of the previous cycle; cycle_i strobes since enable (CYCLE); k mod K and k mod M of
+    -- the next cycle k; a cycle_i was seen since enable; the last take loaded the Omni SYNC
+    signal en_q       : std_logic;
+    signal cyc_cnt    : unsigned(15 downto 0);
+    signal kmod       : unsigned(15 downto 0);
+    signal pmod       : unsigned(15 downto 0);
+    signal first_seen : std_logic;
+    signal took_sync  : std_logic;
+    -- broadcast to send after the SYNC (latched at the SYNC take)
+    signal bcq_dlc  : std_logic_vector(3 downto 0);
+    signal bcq_data : std_logic_vector(63 downto 0);
+    signal bcq_id   : std_logic_vector(10 downto 0);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Frame queue
+    -- ---------------------------------------------------------------------------------------------
+    signal stop_due  : std_logic;
+    signal nmt_due   : std_logic;
+    signal bc_due    : std_logic;
+    signal query_due : std_logic;
+    signal reply_due : std_logic;
+    signal par_due   : std_logic;
+    -- host NMT frame
+    signal nmt_node  : std_logic_vector(7 downto 0);
+    signal nmt_state : std_logic;
+    -- parameter frame registers
+    signal par_node : std_logic_vector(7 downto 0);
+    signal par_type : std_logic_vector(7 downto 0);
+    signal par_dlc  : std_logic_vector(3 downto 0);
+    signal par_lo   : std_logic_vector(31 downto 0);
+    signal par_hi   : std_logic_vector(15 downto 0);
+    -- transmitter: state, kind of the frame on tx_req_o, the item starting now
+    signal tx_st   : tx_state_t;
+    signal tx_kind : kind_t;
+    signal start   : std_logic;
+    signal st_kind : kind_t;
+    -- frame registers
+    signal tx_req  : std_logic;
+    signal tx_id   : std_logic_vector(10 downto 0);
+    signal tx_rtr  : std_logic;
+    signal tx_dlc  : std_logic_vector(3 downto 0);
+    signal tx_data : std_logic_vector(63 downto 0);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Node table
+    -- ---------------------------------------------------------------------------------------------
+    signal s_node  : u8_arr_t(0 to N_SLOTS - 1);
+    signal s_fc    : fc_arr_t(0 to N_SLOTS - 1);
+    signal s_dlc   : nib_arr_t(0 to N_SLOTS - 1);
+    signal s_valid : std_logic_vector(N_SLOTS - 1 downto 0);
+    -- feedback not acknowledged; stored since reset; stored since the last cycle_i
+    signal s_new : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal s_ok  : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal s_got : std_logic_vector(N_SLOTS - 1 downto 0);
+    -- sequence, length errors, missed cycles
+    signal s_seq  : u16_arr_t(0 to N_SLOTS - 1);
+    signal s_len  : u16_arr_t(0 to N_SLOTS - 1);
+    signal s_miss : u16_arr_t(0 to N_SLOTS - 1);
+    -- query: replies of the last query, sticky missing
+    signal alive   : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal missing : std_logic_vector(N_SLOTS - 1 downto 0);
+    -- query window: open, us left, evaluation due
+    signal q_open : std_logic;
+    signal q_cnt  : unsigned(15 downto 0);
+    signal q_eval : std_logic;
+    -- feedback RAM (synchronous read at the host's select)
+    signal fram  : fram_t;
+    signal fr_we : std_logic;
+    signal fr_wa : natural range 0 to N_SLOTS - 1;
+    signal fr_wd : std_logic_vector(fram_w_c - 1 downto 0);
+    signal fr_re : std_logic;
+    signal fr_ra : natural range 0 to N_SLOTS - 1;
+    signal fr_q  : std_logic_vector(fram_w_c - 1 downto 0);
+    -- host selection, snapshot NEW, snapshot holds a stored frame
+    signal sel_slot : natural range 0 to 7;
+    signal snap_new : std_logic;
+    signal snap_ok  : std_logic;
+    -- parameter mailbox
+    signal pmb_sender : std_logic_vector(7 downto 0);
+    signal pmb_type   : std_logic_vector(7 downto 0);
+    signal pmb_dlc    : std_logic_vector(3 downto 0);
+    signal pmb_lo     : std_logic_vector(31 downto 0);
+    signal pmb_hi     : std_logic_vector(15 downto 0);
+    signal pmb_new    : std_logic;
+    signal pmb_ovr    : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Receiver
+    -- ---------------------------------------------------------------------------------------------
+    signal rx_st     : rx_state_t;
+    signal rx_id_q   : std_logic_vector(10 downto 0);
+    signal rx_rtr_q  : std_logic;
+    signal rx_dlc_q  : std_logic_vector(3 downto 0);
+    signal rx_data_q : std_logic_vector(63 downto 0);
+    -- matching slot: feedback (data frame) and query reply (remote frame)
+    signal m_fb_any  : std_logic;
+    signal m_fb_idx  : natural range 0 to N_SLOTS - 1;
+    signal m_rep_any : std_logic;
+    signal m_rep_idx : natural range 0 to N_SLOTS - 1;
+    -- classes in S_RX_MATCH (enabled only)
+    signal c_store : std_logic;
+    signal c_len   : std_logic;
+    signal c_query : std_logic;
+    signal c_reply : std_logic;
+    signal c_param : std_logic;
+    signal c_unexp : std_logic;
+    -- SEQ + 1 and LEN_ERR + 1 of the matched slot
+    signal rx_seq_next : unsigned(15 downto 0);
+    signal rx_len_next : unsigned(15 downto 0);
+    -- strobes
+    signal rx_done_q  : std_logic;
+    signal rx_reply_q : std_logic;
+    signal rx_unexp_q : std_logic;
+    signal ev_q       : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Feasibility (pipelined: serial sum over the terms, products, compare)
+    -- ---------------------------------------------------------------------------------------------
+    signal f_idx    : natural range 0 to N_SLOTS + 1;
+    signal f_acc    : unsigned(15 downto 0);
+    signal f_bits   : unsigned(15 downto 0);
+    signal f_prod_a : unsigned(47 downto 0);
+    signal f_prod_b : unsigned(47 downto 0);
+    signal feasible : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Host window
+    -- ---------------------------------------------------------------------------------------------
+    signal wr_cfg   : std_logic;
+    signal wr_ctrl  : std_logic;
+    signal wr_k     : std_logic;
+    signal wr_poll  : std_logic;
+    signal wr_qwin  : std_logic;
+    signal wr_nmt   : std_logic;
+    signal wr_phdr  : std_logic;
+    signal wr_plo   : std_logic;
+    signal wr_phi   : std_logic;
+    signal wr_sel   : std_logic;
+    signal wr_scfg  : std_logic;
+    signal wr_fbnew : std_logic;
+    signal wr_miss  : std_logic;
+    signal wr_pmbi  : std_logic;
+    signal wr_sp    : std_logic_vector(3 downto 0);
+    -- OMNI_CTRL pulses
+    signal commit : std_logic;
+    signal p_send : std_logic;
+    signal clr    : std_logic;
+    -- read multiplexer and its register; counters
+    signal rd_mux  : std_logic_vector(31 downto 0);
+    signal rdata_q : std_logic_vector(31 downto 0);
+    signal cnt     : cnt_arr_t;
+
+begin
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Host write decode
+    -- ---------------------------------------------------------------------------------------------
+    wr_cfg   <= reg_we_i when is_off(reg_addr_i, off_cfg_c) else '0';
+    wr_ctrl  <= reg_we_i when is_off(reg_addr_i, off_ctrl_c) else '0';
+    wr_k     <= reg_we_i when is_off(reg_addr_i, off_k_c) else '0';
+    wr_poll  <= reg_we_i when is_off(reg_addr_i, off_poll_c) else '0';
+    wr_qwin  <= reg_we_i when is_off(reg_addr_i, off_qwin_c) else '0';
+    wr_nmt   <= reg_we_i when is_off(reg_addr_i, off_nmt_c) else '0';
+    wr_phdr  <= reg_we_i when is_off(reg_addr_i, off_phdr_c) else '0';
+    wr_plo   <= reg_we_i when is_off(reg_addr_i, off_plo_c) else '0';
+    wr_phi   <= reg_we_i when is_off(reg_addr_i, off_phi_c) else '0';
+    wr_sel   <= reg_we_i when is_off(reg_addr_i, off_sel_c) else '0';
+    wr_scfg  <= reg_we_i when is_off(reg_addr_i, off_scfg_c) else '0';
+    wr_fbnew <= reg_we_i when is_off(reg_addr_i, off_fbnew_c) else '0';
+    wr_miss  <= reg_we_i when is_off(reg_addr_i, off_miss_c) else '0';
+    wr_pmbi  <= reg_we_i when is_off(reg_addr_i, off_pmbi_c) else '0';
+
+    sp_dec_gen : for i in 0 to 3 generate
+        wr_sp(i) <= reg_we_i when is_off(reg_addr_i, off_sp_c + i) else '0';
+    end generate sp_dec_gen;
+
+    commit <= wr_ctrl and reg_wdata_i(OMNI_CTRL_COMMIT_C);
+    p_send <= wr_ctrl and reg_wdata_i(OMNI_CTRL_PARAM_SEND_C);
+    clr    <= wr_ctrl and reg_wdata_i(OMNI_CTRL_CLR_COUNTERS_C);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Cycle frame (a function of registers only: what the core copies at cyc_take_i is what the
+    -- engine records at the same edge)
+    -- ---------------------------------------------------------------------------------------------
+    frame_proc : process (all) is
+
+        variable n_v : natural range 0 to 15;
+
+    begin
+
+        n_v := to_integer(unsigned(n_axes));
+
+        if n_v = 0 or (bc4x2 = '1' and n_v > 4) or (bc4x2 = '0' and n_v + bit_int(sender) > 8) then
+            cfg_err <= '1';
+        else
+            cfg_err <= '0';
+        end if;
+
+        if pending = '1' then
+            cur_set <= pend_set;
+        else
+            cur_set <= act_set;
+        end if;
+
+        if bc4x2 = '1' then
+            bc_id  <= fc_bc4_c & master_id;
+            bc_dlc <= std_logic_vector(shift_left(unsigned(n_axes), 1));
+        else
+            bc_id  <= fc_bc8_c & master_id;
+            bc_dlc <= std_logic_vector(unsigned(n_axes) + bit_int(sender));
+        end if;
+
+        bc_dat <= bc_data(cur_set, n_v, bc4x2, sender, master_id);
+
+        if sync_mode = '1' and kmod = 0 then
+            sync_now <= '1';
+        else
+            sync_now <= '0';
+        end if;
+
+    end process frame_proc;
+
+    cyc_id_o   <= sync_id_c when sync_now = '1' else bc_id;
+    cyc_dlc_o  <= (others => '0') when sync_now = '1' else bc_dlc;
+    cyc_data_o <= (others => '0') when sync_now = '1' else keep_bytes(bc_dat, bc_dlc);
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Transmit priority (A11, docs): stop all, NMT, broadcast after SYNC, query, reply, parameter
+    -- ---------------------------------------------------------------------------------------------
+    pick_proc : process (all) is
+    begin
+
+        start   <= '0';
+        st_kind <= K_PARAM;
+
+        if tx_st = S_IDLE and enable_i = '1' then
+            if stop_due = '1' then
+                start   <= '1';
+                st_kind <= K_STOP;
+            elsif nmt_due = '1' then
+                start   <= '1';
+                st_kind <= K_NMT;
+            elsif bc_due = '1' then
+                start   <= '1';
+                st_kind <= K_BC;
+            elsif query_due = '1' then
+                start   <= '1';
+                st_kind <= K_QUERY;
+            elsif reply_due = '1' then
+                start   <= '1';
+                st_kind <= K_REPLY;
+            elsif par_due = '1' then
+                start   <= '1';
+                st_kind <= K_PARAM;
+            end if;
+        end if;
+
+    end process pick_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Receive classification
+    -- ---------------------------------------------------------------------------------------------
+    match_proc : process (all) is
+
+        variable fc_v   : std_logic_vector(2 downto 0);
+        variable node_v : std_logic_vector(7 downto 0);
+        variable b0_v   : std_logic_vector(7 downto 0);
+        variable pd_v   : boolean;
+        variable seq_v  : unsigned(15 downto 0);
+        variable len_v  : unsigned(15 downto 0);
+
+    begin
+
+        fc_v   := rx_id_q(10 downto 8);
+        node_v := rx_id_q(7 downto 0);
+        b0_v   := rx_data_q(7 downto 0);
+        pd_v   := fc_v = "010" or fc_v = "011" or fc_v = "101" or fc_v = "110";
+
+        m_fb_any  <= '0';
+        m_fb_idx  <= 0;
+        m_rep_any <= '0';
+        m_rep_idx <= 0;
+
+        for k in N_SLOTS - 1 downto 0 loop
+
+            if s_valid(k) = '1' and s_node(k) = b0_v and s_fc(k) = fc_v then
+                m_fb_any <= '1';
+                m_fb_idx <= k;
+            end if;
+
+            if s_valid(k) = '1' and s_node(k) = node_v then
+                m_rep_any <= '1';
+                m_rep_idx <= k;
+            end if;
+
+        end loop;
+
+        c_store <= '0';
+        c_len   <= '0';
+        c_query <= '0';
+        c_reply <= '0';
+        c_param <= '0';
+        c_unexp <= '0';
+
+        if rx_st = S_RX_MATCH and enable_i = '1' then
+            if rx_rtr_q = '1' then
+                if rx_id_q = "000" & x"00" then
+                    c_query <= '1';
+                elsif fc_v = fc_nmt_c and m_rep_any = '1' then
+                    c_reply <= '1';
+                else
+                    c_unexp <= '1';
+                end if;
+            elsif pd_v and node_v = master_id and rx_dlc_q /= x"0" and m_fb_any = '1' then
+
+                for k in 0 to N_SLOTS - 1 loop
+
+                    if m_fb_idx = k then
+                        if s_dlc(k) = rx_dlc_q then
+                            c_store <= '1';
+                        else
+                            c_len <= '1';
+                        end if;
+                    end if;
+
+                end loop;
+
+            elsif fc_v = fc_param_c and node_v = master_id
+                  and unsigned(rx_dlc_q) >= param_min_c then
+                c_param <= '1';
+            else
+                c_unexp <= '1';
+            end if;
+        end if;
+
+        seq_v := (others => '0');
+        len_v := (others => '0');
+
+        for k in 0 to N_SLOTS - 1 loop
+
+            if m_fb_idx = k then
+                seq_v := s_seq(k);
+                len_v := s_len(k);
+            end if;
+
+        end loop;
+
+        rx_seq_next <= seq_v + 1;
+        rx_len_next <= sat_inc(len_v);
+
+    end process match_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Configuration registers and staging set-points (host writes)
+    -- ---------------------------------------------------------------------------------------------
+    cfg_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            master_id <= std_logic_vector(to_unsigned(MASTER_ID_DEFAULT, 8));
+            n_axes    <= (others => '0');
+            bc4x2     <= '0';
+            sender    <= '0';
+            sync_mode <= '0';
+            stop_miss <= '0';
+            k_reg     <= unsigned(OMNI_SYNC_K_RESET_C(15 downto 0));
+            m_reg     <= (others => '0');
+            qwin_reg  <= unsigned(OMNI_QUERY_WIN_RESET_C(15 downto 0));
+            staging   <= (others => (others => '0'));
+        elsif rising_edge(clk_i) then
+            if wr_cfg = '1' then
+                master_id <= reg_wdata_i(OMNI_CFG_MASTER_ID_HI_C downto OMNI_CFG_MASTER_ID_LO_C);
+                n_axes    <= reg_wdata_i(OMNI_CFG_N_AXES_HI_C downto OMNI_CFG_N_AXES_LO_C);
+                bc4x2     <= reg_wdata_i(OMNI_CFG_BCAST_4X2_C);
+                sender    <= reg_wdata_i(OMNI_CFG_SENDER_C);
+                sync_mode <= reg_wdata_i(OMNI_CFG_SYNC_MODE_C);
+                stop_miss <= reg_wdata_i(OMNI_CFG_STOP_ON_MISSING_C);
+            end if;
+            if wr_k = '1' then
+                k_reg <= unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto OMNI_SYNC_K_K_LO_C));
+            end if;
+            if wr_poll = '1' then
+                m_reg <= unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto OMNI_POLL_M_LO_C));
+            end if;
+            if wr_qwin = '1' then
+                qwin_reg <= unsigned(reg_wdata_i(OMNI_QUERY_WIN_US_HI_C downto
+                                                 OMNI_QUERY_WIN_US_LO_C));
+            end if;
+
+            for i in 0 to 3 loop
+
+                if wr_sp(i) = '1' then
+                    staging(2 * i)     <= reg_wdata_i(OMNI_SP01_AXIS0_HI_C downto
+                                                      OMNI_SP01_AXIS0_LO_C);
+                    staging(2 * i + 1) <= reg_wdata_i(OMNI_SP01_AXIS1_HI_C downto
+                                                      OMNI_SP01_AXIS1_LO_C);
+                end if;
+
+            end loop;
+
+        end if;
+
+    end process cfg_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Control: set-points, cycle, queue, transmitter, receiver, node table
+    -- ---------------------------------------------------------------------------------------------
+    ctrl_proc : process (clk_i, rst_n_i) is
+
+        variable pend_v    : std_logic;
+        variable ts_v      : std_logic;
+        variable miss_v    : std_logic_vector(N_SLOTS - 1 downto 0);
+        variable inc_v     : inc_arr_t;
+        variable new_v     : std_logic;
+        variable w_slot    : natural range 0 to 7;
+        variable run_v     : boolean;
+        variable fire_sync : boolean;
+        variable poll_now  : boolean;
+        variable qmiss_v   : std_logic_vector(N_SLOTS - 1 downto 0);
+        variable bd_v      : std_logic;
+        variable qd_v      : std_logic;
+        variable rd_v      : std_logic;
+        variable sd_v      : std_logic;
+        variable nd_v      : std_logic;
+        variable pd_v      : std_logic;
+
+    begin
+
+        if rst_n_i = '0' then
+            pend_set   <= (others => (others => '0'));
+            act_set    <= (others => (others => '0'));
+            pending    <= '0';
+            en_q       <= '0';
+            cyc_cnt    <= (others => '0');
+            kmod       <= (others => '0');
+            pmod       <= (others => '0');
+            first_seen <= '0';
+            took_sync  <= '0';
+            stop_due   <= '0';
+            nmt_due    <= '0';
+            bc_due     <= '0';
+            query_due  <= '0';
+            reply_due  <= '0';
+            par_due    <= '0';
+            nmt_node   <= (others => '0');
+            nmt_state  <= '0';
+            par_node   <= (others => '0');
+            par_type   <= (others => '0');
+            par_dlc    <= (others => '0');
+            par_lo     <= (others => '0');
+            par_hi     <= (others => '0');
+            tx_st      <= S_IDLE;
+            tx_kind    <= K_PARAM;
+            tx_req     <= '0';
+            s_node     <= (others => (others => '0'));
+            s_fc       <= (others => (others => '0'));
+            s_dlc      <= (others => (others => '0'));
+            s_valid    <= (others => '0');
+            s_new      <= (others => '0');
+            s_ok       <= (others => '0');
+            s_got      <= (others => '0');
+            s_seq      <= (others => (others => '0'));
+            s_len      <= (others => (others => '0'));
+            s_miss     <= (others => (others => '0'));
+            alive      <= (others => '0');
+            missing    <= (others => '0');
+            q_open     <= '0';
+            q_cnt      <= (others => '0');
+            q_eval     <= '0';
+            sel_slot   <= 0;
+            snap_new   <= '0';
+            snap_ok    <= '0';
+            pmb_new    <= '0';
+            pmb_ovr    <= '0';
+            rx_st      <= S_RX_IDLE;
+            rx_done_q  <= '0';
+            rx_reply_q <= '0';
+            rx_unexp_q <= '0';
+            ev_q       <= '0';
+            cnt        <= (others => (others => '0'));
+        elsif rising_edge(clk_i) then
+            inc_v      := (others => 0);
+            rx_done_q  <= '0';
+            rx_reply_q <= '0';
+            rx_unexp_q <= '0';
+            ev_q       <= '0';
+            en_q       <= enable_i;
+            run_v      := enable_i = '1';
+
+            -- ------------------------------------------------------- set-points and cycle frame
+            -- a take activates the pending set (the take happens before a fire in the same cycle)
+            pend_v := pending;
+            ts_v   := took_sync;
+            if cyc_take_i = '1' and run_v then
+                if pending = '1' then
+                    act_set <= pend_set;
+                    pend_v  := '0';
+                end if;
+                ts_v := sync_now;
+            end if;
+            if commit = '1' then
+                pend_set <= staging;
+                pend_v   := '1';
+            end if;
+            pending <= pend_v;
+
+            -- ------------------------------------------------------------------- cycle instant
+            miss_v    := (others => '0');
+            fire_sync := false;
+            poll_now  := false;
+            qmiss_v   := s_valid and not alive;
+            if not run_v then
+                cyc_cnt    <= (others => '0');
+                kmod       <= (others => '0');
+                pmod       <= (others => '0');
+                first_seen <= '0';
+                ts_v       := '0';
+            elsif en_q = '0' then
+                -- enable rose: count from the first cycle_i after it
+                cyc_cnt    <= (others => '0');
+                kmod       <= (others => '0');
+                pmod       <= (others => '0');
+                first_seen <= '0';
+            elsif cycle_i = '1' then
+                cyc_cnt    <= cyc_cnt + 1;
+                first_seen <= '1';
+                if k_reg <= 1 or kmod >= k_reg - 1 then
+                    kmod <= (others => '0');
+                else
+                    kmod <= kmod + 1;
+                end if;
+                if m_reg = 0 or pmod >= m_reg - 1 then
+                    pmod <= (others => '0');
+                else
+                    pmod <= pmod + 1;
+                end if;
+                if first_seen = '1' then
+                    miss_v := s_valid and not s_got;
+                end if;
+                fire_sync := ts_v = '1';
+                poll_now  := m_reg /= 0 and pmod = 0;
+                ts_v      := '0';
+            end if;
+            took_sync <= ts_v;
+
+            -- ------------------------------------------------------------------------- queue
+            -- the item starting now leaves the queue; requests made at this edge are kept
+            bd_v := bc_due;
+            qd_v := query_due;
+            rd_v := reply_due;
+            sd_v := stop_due;
+            nd_v := nmt_due;
+            pd_v := par_due;
+            if start = '1' then
+
+                case st_kind is
+
+                    when K_STOP =>
+
+                        sd_v := '0';
+
+                    when K_NMT =>
+
+                        nd_v := '0';
+
+                    when K_BC =>
+
+                        bd_v := '0';
+
+                    when K_QUERY =>
+
+                        qd_v := '0';
+
+                    when K_REPLY =>
+
+                        rd_v := '0';
+
+                    when K_PARAM =>
+
+                        pd_v := '0';
+
+                end case;
+
+            end if;
+            if fire_sync then
+                -- the cycle frame fired now was the Omni SYNC: the broadcast follows
+                if bd_v = '1' then
+                    inc_v(cnt_late_c) := inc_v(cnt_late_c) + 1;
+                end if;
+                bd_v := '1';
+            end if;
+            if poll_now then
+                -- node query every M cycles, unless the previous one is still running
+                if query_due = '1' or q_open = '1' or q_eval = '1'
+                   or (tx_req = '1' and tx_kind = K_QUERY) then
+                    inc_v(cnt_late_c) := inc_v(cnt_late_c) + 1;
+                else
+                    qd_v := '1';
+                end if;
+            end if;
+            if c_query = '1' then
+                rd_v := '1';
+            end if;
+            if q_eval = '1' and stop_miss = '1' and qmiss_v /= zero_slots_c then
+                sd_v := '1';
+            end if;
+            if wr_nmt = '1' and run_v then
+                if nd_v = '1' then
+                    inc_v(cnt_refuse_c) := 1;
+                else
+                    nd_v      := '1';
+                    nmt_node  <= reg_wdata_i(OMNI_NMT_NODE_HI_C downto OMNI_NMT_NODE_LO_C);
+                    nmt_state <= reg_wdata_i(OMNI_NMT_STATE_C);
+                end if;
+            end if;
+            if p_send = '1' and run_v then
+                if pd_v = '1' then
+                    inc_v(cnt_refuse_c) := 1;
+                else
+                    pd_v := '1';
+                end if;
+            end if;
+            if not run_v then
+                bd_v := '0';
+                qd_v := '0';
+                rd_v := '0';
+                sd_v := '0';
+                nd_v := '0';
+                pd_v := '0';
+            end if;
+            bc_due    <= bd_v;
+            query_due <= qd_v;
+            reply_due <= rd_v;
+            stop_due  <= sd_v;
+            nmt_due   <= nd_v;
+            par_due   <= pd_v;
+            if not run_v and (wr_nmt = '1' or p_send = '1') then
+                inc_v(cnt_refuse_c) := 1;
+            end if;
+
+            -- parameter registers (refused while the frame is queued)
+            if par_due = '0' then
+                if wr_phdr = '1' then
+                    par_node <= reg_wdata_i(OMNI_PARAM_HDR_NODE_HI_C downto
+                                            OMNI_PARAM_HDR_NODE_LO_C);
+                    par_type <= reg_wdata_i(OMNI_PARAM_HDR_TYPE_HI_C downto
+                                            OMNI_PARAM_HDR_TYPE_LO_C);
+                    par_dlc  <= reg_wdata_i(OMNI_PARAM_HDR_DLC_HI_C downto
+                                            OMNI_PARAM_HDR_DLC_LO_C);
+                end if;
+                if wr_plo = '1' then
+                    par_lo <= reg_wdata_i(OMNI_PARAM_LO_DATA_HI_C downto OMNI_PARAM_LO_DATA_LO_C);
+                end if;
+                if wr_phi = '1' then
+                    par_hi <= reg_wdata_i(OMNI_PARAM_HI_DATA_HI_C downto OMNI_PARAM_HI_DATA_LO_C);
+                end if;
+            elsif wr_phdr = '1' or wr_plo = '1' or wr_phi = '1' then
+                inc_v(cnt_refuse_c) := 1;
+            end if;
+
+            -- ------------------------------------------------------------------- transmitter
+
+            case tx_st is
+
+                when S_IDLE =>
+
+                    if start = '1' then
+                        tx_kind <= st_kind;
+                        tx_req  <= '1';
+                        tx_st   <= S_WAIT;
+                    end if;
+
+                when S_WAIT =>
+
+                    if tx_ack_i = '1' or not run_v then
+                        tx_req <= '0';
+                        tx_st  <= S_IDLE;
+                    end if;
+
+            end case;
+
+            if tx_st = S_WAIT and tx_ack_i = '1' and run_v then
+                inc_v(cnt_tx_c) := 1;
+            end if;
+
+            -- ----------------------------------------------------------------- query window
+            q_eval <= '0';
+            if not run_v then
+                q_open <= '0';
+            elsif tx_st = S_WAIT and tx_ack_i = '1' and tx_kind = K_QUERY then
+                -- the window starts at the query's tx_ack_i (a tick at this edge is not counted)
+                q_open <= '1';
+                alive  <= (others => '0');
+                if qwin_reg = 0 then
+                    q_cnt <= to_unsigned(1, 16);
+                else
+                    q_cnt <= qwin_reg;
+                end if;
+            elsif q_open = '1' and tick_us_i = '1' then
+                if q_cnt <= 1 then
+                    q_open <= '0';
+                    q_eval <= '1';
+                else
+                    q_cnt <= q_cnt - 1;
+                end if;
+            end if;
+
+            if q_eval = '1' then
+                if qmiss_v /= zero_slots_c then
+                    ev_q <= '1';
+                end if;
+                inc_v(cnt_nmiss_c) := ones(qmiss_v);
+            end if;
+
+            -- --------------------------------------------------------------------- receiver
+
+            case rx_st is
+
+                when S_RX_IDLE =>
+
+                    if rx_valid_i = '1' then
+                        rx_st <= S_RX_MATCH;
+                    end if;
+
+                when S_RX_MATCH =>
+
+                    if c_query = '1' then
+                        rx_st <= S_RX_REPLY;
+                    else
+                        rx_done_q  <= '1';
+                        rx_unexp_q <= c_unexp;
+                        rx_st      <= S_RX_IDLE;
+                    end if;
+
+                when S_RX_REPLY =>
+
+                    -- done as soon as a frame is presented (the reply, or one before it: the
+                    -- reply then follows through FSM T20)
+                    if not run_v then
+                        rx_done_q <= '1';
+                        rx_st     <= S_RX_IDLE;
+                    elsif tx_req = '1' then
+                        rx_done_q <= '1';
+                        rx_st     <= S_RX_IDLE;
+                        if tx_kind = K_REPLY and tx_ack_i = '0' then
+                            rx_reply_q <= '1';
+                        end if;
+                    end if;
+
+            end case;
+
+            if c_store = '1' or c_param = '1' then
+                ev_q <= '1';
+            end if;
+            if c_store = '1' then
+                inc_v(cnt_fb_c) := 1;
+            end if;
+            if c_len = '1' then
+                inc_v(cnt_len_c) := 1;
+            end if;
+            if c_unexp = '1' then
+                inc_v(cnt_unexp_c) := 1;
+            end if;
+            if c_param = '1' then
+                inc_v(cnt_prx_c) := 1;
+            end if;
+
+            -- parameter mailbox
+            if wr_pmbi = '1' then
+                if reg_wdata_i(OMNI_PMB_INFO_NEW_C) = '1' then
+                    pmb_new <= '0';
+                end if;
+                if reg_wdata_i(OMNI_PMB_INFO_OVERRUN_C) = '1' then
+                    pmb_ovr <= '0';
+                end if;
+            end if;
+            if c_param = '1' then
+                pmb_new <= '1';
+                if pmb_new = '1' and not (wr_pmbi = '1'
+                                          and reg_wdata_i(OMNI_PMB_INFO_NEW_C) = '1') then
+                    pmb_ovr <= '1';
+                end if;
+            end if;
+
+            -- ------------------------------------------------------------------- node table
+            inc_v(cnt_miss_c) := ones(miss_v);
+
+            if wr_sel = '1' then
+                w_slot   := to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto
+                                                            OMNI_SEL_SLOT_LO_C)));
+                sel_slot <= w_slot;
+                snap_new <= '0';
+                snap_ok  <= '0';
+
+                for k in 0 to N_SLOTS - 1 loop
+
+                    if w_slot = k then
+                        snap_new <= s_new(k);
+                        snap_ok  <= s_ok(k);
+                    end if;
+
+                end loop;
+
+            end if;
+
+            for k in 0 to N_SLOTS - 1 loop
+
+                new_v := s_new(k);
+
+                if wr_scfg = '1' and sel_slot = k then
+                    s_node(k)  <= reg_wdata_i(OMNI_SLOT_CFG_NODE_HI_C downto
+                                              OMNI_SLOT_CFG_NODE_LO_C);
+                    s_fc(k)    <= reg_wdata_i(OMNI_SLOT_CFG_FC_HI_C downto OMNI_SLOT_CFG_FC_LO_C);
+                    s_valid(k) <= reg_wdata_i(OMNI_SLOT_CFG_VALID_C);
+                    s_dlc(k)   <= reg_wdata_i(OMNI_SLOT_CFG_DLC_HI_C downto
+                                              OMNI_SLOT_CFG_DLC_LO_C);
+                    -- the current cycle is not checked after a configuration write
+                    s_got(k) <= '1';
+                elsif cycle_i = '1' and run_v and en_q = '1' then
+                    -- the cycle closes first: a feedback in the same cycle counts for the next
+                    s_got(k) <= '0';
+                    if c_store = '1' and m_fb_idx = k then
+                        s_got(k) <= '1';
+                    end if;
+                elsif c_store = '1' and m_fb_idx = k then
+                    s_got(k) <= '1';
+                end if;
+
+                if clr = '1' then
+                    s_miss(k) <= (others => '0');
+                elsif miss_v(k) = '1' then
+                    s_miss(k) <= sat_inc(s_miss(k));
+                end if;
+
+                if clr = '1' then
+                    s_len(k) <= (others => '0');
+                elsif c_len = '1' and m_fb_idx = k then
+                    s_len(k) <= rx_len_next;
+                end if;
+
+                -- NEW: OMNI_SEL.ACK with the selection or OMNI_FB_NEW written 1, then reception
+                if (wr_sel = '1' and reg_wdata_i(OMNI_SEL_ACK_C) = '1'
+                    and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)) = k)
+                   or (wr_fbnew = '1' and reg_wdata_i(k) = '1') then
+                    new_v := '0';
+                end if;
+
+                if c_store = '1' and m_fb_idx = k then
+                    s_seq(k) <= rx_seq_next;
+                    s_ok(k)  <= '1';
+                    new_v    := '1';
+                end if;
+
+                s_new(k) <= new_v;
+
+                if c_reply = '1' and m_rep_idx = k and q_open = '1' then
+                    alive(k) <= '1';
+                end if;
+
+                if wr_miss = '1' and reg_wdata_i(k) = '1' then
+                    missing(k) <= '0';
+                end if;
+                if q_eval = '1' and s_valid(k) = '1' and alive(k) = '0' then
+                    missing(k) <= '1';
+                end if;
+
+            end loop;
+
+            -- -------------------------------------------------------------------- counters
+
+            for i in 0 to cnt_num_c - 1 loop
+
+                if clr = '1' then
+                    cnt(i) <= (others => '0');
+                elsif inc_v(i) /= 0 then
+                    cnt(i) <= sat_add(cnt(i), inc_v(i));
+                end if;
+
+            end loop;
+
+        end if;
+
+    end process ctrl_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Datapath registers qualified by a flag (no reset)
+    -- ---------------------------------------------------------------------------------------------
+    data_proc : process (clk_i) is
+
+        variable d_v : std_logic_vector(63 downto 0);
+
+    begin
+
+        if rising_edge(clk_i) then
+            -- broadcast of a SYNC cycle, latched at its take
+            if cyc_take_i = '1' and sync_now = '1' then
+                bcq_id   <= bc_id;
+                bcq_dlc  <= bc_dlc;
+                bcq_data <= keep_bytes(bc_dat, bc_dlc);
+            end if;
+
+            -- the frame starting now
+            if start = '1' then
+
+                case st_kind is
+
+                    when K_STOP =>
+
+                        tx_id   <= (others => '0');
+                        tx_rtr  <= '0';
+                        tx_dlc  <= nmt_dlc_c;
+                        tx_data <= (others => '0');
+
+                    when K_NMT =>
+
+                        tx_id   <= (others => '0');
+                        tx_rtr  <= '0';
+                        tx_dlc  <= nmt_dlc_c;
+                        tx_data <= std_logic_vector(resize(unsigned(nmt_state & nmt_node), 64));
+
+                    when K_BC =>
+
+                        tx_id   <= bcq_id;
+                        tx_rtr  <= '0';
+                        tx_dlc  <= bcq_dlc;
+                        tx_data <= bcq_data;
+
+                    when K_QUERY =>
+
+                        tx_id   <= (others => '0');
+                        tx_rtr  <= '1';
+                        tx_dlc  <= (others => '0');
+                        tx_data <= (others => '0');
+
+                    when K_REPLY =>
+
+                        tx_id   <= fc_nmt_c & master_id;
+                        tx_rtr  <= '1';
+                        tx_dlc  <= (others => '0');
+                        tx_data <= (others => '0');
+
+                    when K_PARAM =>
+
+                        tx_id   <= fc_param_c & par_node;
+                        tx_rtr  <= '0';
+                        tx_dlc  <= par_dlc;
+                        tx_data <= keep_bytes(par_hi & par_lo & par_type & master_id, par_dlc);
+
+                end case;
+
+            end if;
+
+            -- received frame
+            if rx_st = S_RX_IDLE and rx_valid_i = '1' then
+                rx_id_q   <= rx_id_i;
+                rx_rtr_q  <= rx_rtr_i;
+                rx_dlc_q  <= rx_dlc_i;
+                rx_data_q <= rx_data_i;
+            end if;
+
+            -- parameter mailbox
+            if c_param = '1' then
+                pmb_sender <= rx_data_q(7 downto 0);
+                pmb_type   <= rx_data_q(15 downto 8);
+                pmb_dlc    <= rx_dlc_q;
+                d_v        := keep_bytes(rx_data_q, rx_dlc_q);
+                pmb_lo     <= d_v(47 downto 16);
+                pmb_hi     <= d_v(63 downto 48);
+            end if;
+        end if;
+
+    end process data_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Feedback RAM: written at a store, read at the host's select (snapshot)
+    -- ---------------------------------------------------------------------------------------------
+    fr_we <= c_store;
+    fr_wa <= m_fb_idx;
+    fr_wd <= std_logic_vector(cyc_cnt) & std_logic_vector(rx_seq_next)
+             & keep_bytes(rx_data_q, rx_dlc_q);
+    fr_re <= '1' when wr_sel = '1'
+                      and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C))
+                      < N_SLOTS else
+             '0';
+    fr_ra <= to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)))
+             when fr_re = '1' else
+             0;
+
+    fram_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if fr_we = '1' then
+                fram(fr_wa) <= fr_wd;
+            end if;
+            if fr_re = '1' then
+                fr_q <= fram(fr_ra);
+            end if;
+        end if;
+
+    end process fram_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Feasibility: bits of one worst-case cycle, summed one term per clock; then
+    -- bits * ns_per_bit <= period_us * 1000 (no divider)
+    -- ---------------------------------------------------------------------------------------------
+    feas_proc : process (clk_i, rst_n_i) is
+
+        variable term_v : natural range 0 to 255;
+
+    begin
+
+        if rst_n_i = '0' then
+            f_idx    <= 0;
+            f_acc    <= (others => '0');
+            f_bits   <= (others => '0');
+            f_prod_a <= (others => '1');
+            f_prod_b <= (others => '0');
+            feasible <= '0';
+        elsif rising_edge(clk_i) then
+            term_v := 0;
+
+            if f_idx = 0 then
+                term_v := wc_of(bc_dlc);
+            elsif f_idx = 1 then
+                if sync_mode = '1' then
+                    term_v := wc_bits_c(0);
+                end if;
+            else
+
+                for k in 0 to N_SLOTS - 1 loop
+
+                    if f_idx = k + 2 and s_valid(k) = '1' then
+                        term_v := wc_of(s_dlc(k));
+                    end if;
+
+                end loop;
+
+            end if;
+
+            if f_idx = N_SLOTS + 1 then
+                f_bits <= f_acc + term_v;
+                f_acc  <= (others => '0');
+                f_idx  <= 0;
+            else
+                f_acc <= f_acc + term_v;
+                f_idx <= f_idx + 1;
+            end if;
+
+            f_prod_a <= resize(f_bits * to_unsigned(ns_per_bit_c, 32), 48);
+            f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(ns_per_us_c, 10), 48);
+
+            if f_prod_a <= f_prod_b and cfg_err = '0' then
+                feasible <= '1';
+            else
+                feasible <= '0';
+            end if;
+        end if;
+
+    end process feas_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
+    -- ---------------------------------------------------------------------------------------------
+    read_mux_proc : process (all) is
+
+        variable a : std_logic_vector(5 downto 0);
+        variable v : std_logic_vector(31 downto 0);
+
+        procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
+        begin
+
+            if is_off(a, n) then
+                v := v or word;
+            end if;
+
+        end procedure put;
+
+    begin
+
+        a := reg_addr_i;
+        v := (others => '0');
+
+        put(off_info_c, at(std_logic_vector(to_unsigned(N_SLOTS, 4)), OMNI_INFO_N_SLOTS_HI_C,
+                           OMNI_INFO_N_SLOTS_LO_C));
+        put(off_cfg_c,
+            at(master_id, OMNI_CFG_MASTER_ID_HI_C, OMNI_CFG_MASTER_ID_LO_C)
+            or at(n_axes, OMNI_CFG_N_AXES_HI_C, OMNI_CFG_N_AXES_LO_C)
+            or at(bc4x2, OMNI_CFG_BCAST_4X2_C) or at(sender, OMNI_CFG_SENDER_C)
+            or at(sync_mode, OMNI_CFG_SYNC_MODE_C) or at(stop_miss, OMNI_CFG_STOP_ON_MISSING_C));
+        put(off_stat_c,
+            at(pending, OMNI_STATUS_PENDING_C) or at(not feasible, OMNI_STATUS_INFEASIBLE_C)
+            or at(cfg_err, OMNI_STATUS_CFG_ERR_C) or at(nmt_due, OMNI_STATUS_NMT_BUSY_C)
+            or at(par_due, OMNI_STATUS_PARAM_BUSY_C) or at(q_open, OMNI_STATUS_QUERY_OPEN_C)
+            or at(stop_due, OMNI_STATUS_STOP_DUE_C) or at(enable_i, OMNI_STATUS_ENABLED_C));
+        put(off_k_c, at(std_logic_vector(k_reg), OMNI_SYNC_K_K_HI_C, OMNI_SYNC_K_K_LO_C));
+        put(off_poll_c, at(std_logic_vector(m_reg), OMNI_POLL_M_HI_C, OMNI_POLL_M_LO_C));
+        put(off_qwin_c,
+            at(std_logic_vector(qwin_reg), OMNI_QUERY_WIN_US_HI_C, OMNI_QUERY_WIN_US_LO_C));
+        put(off_cycle_c,
+            at(std_logic_vector(cyc_cnt), OMNI_CYCLE_COUNT_HI_C, OMNI_CYCLE_COUNT_LO_C));
+
+        for i in 0 to 3 loop
+
+            put(off_sp_c + i,
+                at(staging(2 * i), OMNI_SP01_AXIS0_HI_C, OMNI_SP01_AXIS0_LO_C)
+                or at(staging(2 * i + 1), OMNI_SP01_AXIS1_HI_C, OMNI_SP01_AXIS1_LO_C));
+
+        end loop;
+
+        put(off_phdr_c,
+            at(par_node, OMNI_PARAM_HDR_NODE_HI_C, OMNI_PARAM_HDR_NODE_LO_C)
+            or at(par_type, OMNI_PARAM_HDR_TYPE_HI_C, OMNI_PARAM_HDR_TYPE_LO_C)
+            or at(par_dlc, OMNI_PARAM_HDR_DLC_HI_C, OMNI_PARAM_HDR_DLC_LO_C));
+        put(off_plo_c, par_lo);
+        put(off_phi_c, at(par_hi, OMNI_PARAM_HI_DATA_HI_C, OMNI_PARAM_HI_DATA_LO_C));
+        put(off_sel_c,
+            at(std_logic_vector(to_unsigned(sel_slot, 3)), OMNI_SEL_SLOT_HI_C, OMNI_SEL_SLOT_LO_C)
+            or at(snap_new, OMNI_SEL_NEW_C));
+
+        for k in 0 to N_SLOTS - 1 loop
+
+            if sel_slot = k then
+                put(off_scfg_c,
+                    at(s_node(k), OMNI_SLOT_CFG_NODE_HI_C, OMNI_SLOT_CFG_NODE_LO_C)
+                    or at(s_fc(k), OMNI_SLOT_CFG_FC_HI_C, OMNI_SLOT_CFG_FC_LO_C)
+                    or at(s_valid(k), OMNI_SLOT_CFG_VALID_C)
+                    or at(s_dlc(k), OMNI_SLOT_CFG_DLC_HI_C, OMNI_SLOT_CFG_DLC_LO_C));
+                if snap_ok = '1' then
+                    put(off_fblo_c, fr_q(31 downto 0));
+                    put(off_fbhi_c, fr_q(63 downto 32));
+                    put(off_fbinfo_c,
+                        at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
+                        or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C,
+                                 OMNI_FB_INFO_CYCLE_LO_C));
+                end if;
+                put(off_serr_c,
+                    at(std_logic_vector(s_len(k)), OMNI_SLOT_ERR_LEN_ERR_HI_C,
+                          OMNI_SLOT_ERR_LEN_ERR_LO_C)
+                    or at(std_logic_vector(s_miss(k)), OMNI_SLOT_ERR_MISSED_HI_C,
+                             OMNI_SLOT_ERR_MISSED_LO_C));
+            end if;
+
+        end loop;
+
+        put(off_fbnew_c, at(s_new, N_SLOTS - 1, 0));
+        put(off_alive_c, at(alive, N_SLOTS - 1, 0));
+        put(off_miss_c, at(missing, N_SLOTS - 1, 0));
+        put(off_pmbi_c,
+            at(pmb_sender, OMNI_PMB_INFO_SENDER_HI_C, OMNI_PMB_INFO_SENDER_LO_C)
+            or at(pmb_type, OMNI_PMB_INFO_TYPE_HI_C, OMNI_PMB_INFO_TYPE_LO_C)
+            or at(pmb_dlc, OMNI_PMB_INFO_DLC_HI_C, OMNI_PMB_INFO_DLC_LO_C)
+            or at(pmb_ovr, OMNI_PMB_INFO_OVERRUN_C) or at(pmb_new, OMNI_PMB_INFO_NEW_C));
+        put(off_pmblo_c, pmb_lo);
+        put(off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
+        put(off_bits_c, at(std_logic_vector(f_bits), OMNI_BUS_BITS_BITS_HI_C,
+                           OMNI_BUS_BITS_BITS_LO_C));
+
+        for i in 0 to cnt_num_c - 1 loop
+
+            put(off_cnt_c + i, std_logic_vector(cnt(i)));
+
+        end loop;
+
+        rd_mux <= v;
+
+    end process read_mux_proc;
+
+    rd_data_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            rdata_q <= rd_mux;
+        end if;
+
+    end process rd_data_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Outputs
+    -- ---------------------------------------------------------------------------------------------
+    feasible_o      <= feasible;
+    reg_rdata_o     <= rdata_q;
+    rx_done_o       <= rx_done_q;
+    rx_reply_o      <= rx_reply_q;
+    rx_unexpected_o <= rx_unexp_q;
+    tx_req_o        <= tx_req;
+    tx_id_o         <= tx_id;
+    tx_rtr_o        <= tx_rtr;
+    tx_dlc_o        <= tx_dlc;
+    tx_data_o       <= tx_data;
+    ev_o            <= ev_q;
+
+end architecture rtl;

@@ -1,0 +1,324 @@
+"""System bench of the Omni-ID mode: the master RTL (CTRL.OMNI) on the robot network of the
+NCTU thesis, with drifting Omni-ID reference slaves (``sim_models.omni``).
+
+The master runs the periodic cycle from its SYNC producer (the cycle frame in TXB2, fired by
+TX2RTS at the exact period), the host writes the set-points of cycle k+1 in the interrupt of
+cycle k, and the slaves sample on their own drifting clocks. The same network is then run with
+the transaction-level reference master (``sim_models.omni.master_model.OmniMaster``) and the
+figures of the two runs are compared cell by cell: the RTL master must behave as the reference.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from types import SimpleNamespace
+
+import can
+import cocotb
+import pytest
+from cocotb.triggers import Timer
+
+from sim_models.can_bus import worst_case_bits
+from sim_models.omni import codec as oc
+from sim_models.omni.experiments import delivery_latency_ps, evaluate_slave, n_drift_model
+from sim_models.omni.slave import setpoint_value
+from sim_models.sim_time import PS_PER_US
+from tb.tblib import regmap as R
+from tb.tblib.fsm_states import State
+from tb.tblib.metrics import record
+from tb.tblib.model_clock import sim_time_ps
+from tb.tblib.omni_system import (
+    BITRATE,
+    MASTER_ID,
+    TAU_PS,
+    SlaveSpec,
+    cycle_log,
+    make_slave,
+    python_reference,
+    run_rtl_cycle,
+)
+from tb.tblib.runner import ROOT, run_cocotb
+from tb.tblib.system_tb import SystemTB
+
+OUT = ROOT / "build" / "omni"
+SYSTEM = {"CLK_FREQ_HZ": 20_000_000, "SPI_SCLK_HZ": 5_000_000, "OSC_FREQ_HZ": 16_000_000,
+          "CAN_BITRATE_BPS": 1_000_000, "MAX_NODES": 4, "RESET_WAIT_US": 20}
+
+# the robot network: the thesis' four wheels at realistic crystals (AT-9), plus two slaves at
+# the thesis' measured drift (+3618 ppm, AT-5/AT-10), one without and one with re-phasing.
+# Omni-ID has four feedback function codes (Table 4-2), so only four slaves can send process
+# data to one master: the two extra axes only receive. A slave that samples right at the SYNC
+# (the wheels) tolerates a lag of only (broadcast latency - SYNC latency), about 80 us, between
+# two re-phases; the +3618 ppm one (362 us per 100 cycles) samples half a period after the
+# SYNC instead, the command of its own cycle, which tolerates about +-T_s/2.
+PERIOD_US = 1000
+SYNC_K = 100
+N_CYCLES = int(os.environ.get("OMNI_CYCLES", "300"))
+ROBOT = [
+    SlaveSpec(0x04, 1, -100.0, "sync_frame", oc.FC_PD_010),
+    SlaveSpec(0x08, 2, -50.0, "sync_frame", oc.FC_PD_011),
+    SlaveSpec(0x10, 3, 50.0, "sync_frame", oc.FC_PD_101),
+    SlaveSpec(0x20, 4, 100.0, "sync_frame", oc.FC_PD_110),
+    SlaveSpec(0x40, 5, 3618.0, "none", None, start_delay_ps=3 * PERIOD_US * PS_PER_US // 2),
+    SlaveSpec(0x41, 6, 3618.0, "sync_frame", None, sample_phase_ps=PERIOD_US * PS_PER_US // 2,
+              cycle_offset=0),
+]
+
+
+@cocotb.test(timeout_time=2000, timeout_unit="ms")
+async def run_robot_drift(dut):
+    """Purpose: the Omni-ID cycle of the RTL master with drifting slaves, and its agreement with
+    the Python reference master on the same network.
+
+    Verifies: cycle instants exactly T_s apart; cycle frame of cycle k = Omni SYNC 080h when
+    k mod K = 0, else the broadcast 102h; every broadcast (DLC 7: [02][axis 6]..[axis 1]) carries
+    cycle k's set-points; re-phased slaves have 0 % dropout and per-slave / inter-slave skew
+    within |rho|·K·T_s + 2 bit times (AT-9, AT-10 with sync); the +3618 ppm slave without
+    re-phasing starts dropping at the sample the drift model predicts (AT-5/AT-10); the master
+    stored every feedback frame (OMNI_CNT_FB_RX = frames on the bus) and counted no missed
+    cycle for the re-phased slaves; the same figures (dropout per slave, onset, skews) from the
+    reference master within one sample / two bit times; the frames went through the FSM's
+    generation, encapsulation, transmit, receive and dispatch states.
+    """
+    tb = SystemTB(dut, node_ids=(), with_raw_node=False)
+    period_ps = PERIOD_US * PS_PER_US
+    models = [tb.bus.attach(make_slave(tb.sched, s, period_ps, SYNC_K)) for s in ROBOT]
+    await tb.reset()
+    await tb.wait_master_ready()
+    mon = await run_rtl_cycle(tb, ROBOT, period_us=PERIOD_US, n_cycles=N_CYCLES,
+                              sync_k=SYNC_K)
+    host = tb.host
+    cyc = cycle_log(tb, mon, N_CYCLES)
+    # exact period, exact cycle-frame choice, exact content
+    fires = mon.fires[:N_CYCLES]
+    assert {b - a for a, b in zip(fires, fires[1:])} == {period_ps}
+    by_start = {r.t_start_ps: r for r in tb.frames()}
+    for k, t0 in cyc:
+        msg = by_start[t0].msg
+        assert msg.arbitration_id == (0x080 if k % SYNC_K == 0 else 0x100 | MASTER_ID), (k, msg)
+    bcasts = [bytes(r.msg.data) for r in tb.frames(0x100 | MASTER_ID)]
+    assert len(bcasts) >= N_CYCLES
+    for k, data in enumerate(bcasts[:N_CYCLES]):
+        exp = bytes([MASTER_ID]) + bytes(setpoint_value(k, a) & 0xFF for a in (6, 5, 4, 3, 2, 1))
+        assert data == exp, (k, data.hex(), exp.hex())
+    # slaves
+    master_like = SimpleNamespace(cycle_log=cyc)
+    d_sync = delivery_latency_ps(BITRATE, oc.omni_sync_frame())
+    res = {s.node: evaluate_slave(m, master_like, N_CYCLES - 1, s.ppm,
+                                  d_sync + s.sample_phase_ps) for s, m in zip(ROBOT, models)}
+    for s in ROBOT:
+        r = res[s.node]
+        dut._log.info("RTL slave %02x (%+g ppm, %s): n=%d dropout=%d onset=%s skew=%.2f us",
+                      s.node, s.ppm, s.resync, r.n, r.n_dropout, r.onset, r.skew_max_ps / 1e6)
+        if s.resync == "sync_frame":
+            assert r.n_dropout == 0, (s, r.summary())
+            bound = abs(s.ppm) * 1e-6 * SYNC_K * period_ps + 2 * TAU_PS
+            assert r.skew_max_ps <= bound, (s, r.skew_max_ps, bound)
+    wheels = [m for s, m in zip(ROBOT, models) if s.ppm in (-100, -50, 50, 100)]
+    inter = []
+    cycles = dict(cyc)
+    ticks: dict[int, list[int]] = {}
+    for m in wheels:
+        for t in m.control_log:
+            if t.tick in cycles:
+                ticks.setdefault(t.tick, []).append(t.t_ps)
+    inter = [max(v) - min(v) for v in ticks.values() if len(v) == len(wheels)]
+    inter_bound = 200e-6 * SYNC_K * period_ps + 2 * TAU_PS
+    assert inter and max(inter) <= inter_bound, (max(inter), inter_bound)
+    # the drifting slave without re-phasing: onset as the drift model predicts
+    free = next(s for s in ROBOT if s.resync == "none")
+    r_free = res[free.node]
+    t_dif0 = r_free.offsets_ps[0]
+    assert r_free.onset is not None, r_free.summary()
+    # T_delay of the model: the broadcast that overwrote the needed command (its real length,
+    # stuff bits of its real data included)
+    d_cmd = delivery_latency_ps(BITRATE, tb.frames(0x100 | MASTER_ID)[r_free.onset + 1].msg)
+    model = n_drift_model(t_dif0, free.ppm, period_ps, d_cmd)
+    dut._log.info("free-running +3618 ppm slave: t_dif0 %.1f us, onset %s, model %d",
+                  t_dif0 / 1e6, r_free.onset, model)
+    assert r_free.onset is not None and abs(r_free.onset - model) <= 1, (r_free.onset, model)
+    # master side
+    cnt = await host.omni_counters()
+    fb_frames = [r for r in tb.frames() if (r.msg.arbitration_id & 0xFF) == MASTER_ID
+                 and (r.msg.arbitration_id >> 8) in (2, 3, 5, 6)]
+    assert cnt["fb_rx"] == len(fb_frames), (cnt, len(fb_frames))
+    assert cnt["len_err"] == 0 and cnt["unexpected"] == 0 and cnt["late"] == 0, cnt
+    for slot, s in enumerate(x for x in ROBOT if x.fc is not None):
+        fb = await host.omni_feedback(slot)
+        assert fb["missed"] == 0 and fb["data"][0] == s.node, (s, fb)
+    # the Python reference master on the same network, same first-cycle phase
+    nmt = tb.frames(0x000)[0]
+    ref_master, ref_models = python_reference(
+        ROBOT, period_ps=period_ps, n_cycles=N_CYCLES, k=SYNC_K,
+        first_cycle_delay_ps=cyc[0][1] - nmt.t_start_ps)
+    table = []
+    for s, m in zip(ROBOT, ref_models):
+        r_ref = evaluate_slave(m, ref_master, N_CYCLES - 1, s.ppm, d_sync + s.sample_phase_ps)
+        r = res[s.node]
+        table.append({"node": f"{s.node:02X}h", "ppm": s.ppm, "resync": s.resync,
+                      "rtl": {"n": r.n, "dropout": r.n_dropout, "onset": r.onset,
+                              "skew_max_us": round(r.skew_max_ps / 1e6, 3)},
+                      "reference": {"n": r_ref.n, "dropout": r_ref.n_dropout,
+                                    "onset": r_ref.onset,
+                                    "skew_max_us": round(r_ref.skew_max_ps / 1e6, 3)}})
+        dut._log.info("reference slave %02x: n=%d dropout=%d onset=%s skew=%.2f us", s.node,
+                      r_ref.n, r_ref.n_dropout, r_ref.onset, r_ref.skew_max_ps / 1e6)
+        assert abs(r_ref.n_dropout - r.n_dropout) <= 1, (s, r_ref.summary(), r.summary())
+        if r.onset is not None or r_ref.onset is not None:
+            assert r.onset is not None and r_ref.onset is not None
+            assert abs(r.onset - r_ref.onset) <= 1, (s, r.onset, r_ref.onset)
+        if s.resync == "sync_frame":
+            assert abs(r.skew_max_ps - r_ref.skew_max_ps) <= 2 * TAU_PS, (s, r, r_ref)
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "robot_crosscheck.json").write_text(json.dumps(
+        {"cycles": N_CYCLES, "period_us": PERIOD_US, "sync_k": SYNC_K,
+         "free_running_onset_model": model, "inter_slave_skew_max_us": max(inter) / 1e6,
+         "slaves": table}, indent=2) + "\n")
+    # the 14-state FSM carried the Omni-ID frames
+    seen = {st for _, st in tb.fsm.log}
+    for st in (State.S_SYNC_GEN, State.S_CAN_RX, State.S_PARSE, State.S_PDO_PROC,
+               State.S_PDO_GEN, State.S_ENCAP, State.S_CAN_TX):
+        assert st in seen, st
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
+
+WHEELS = ROBOT[:4]
+
+
+@cocotb.test(timeout_time=500, timeout_unit="ms")
+async def run_node_monitoring_and_traces(dut):
+    """Purpose: node monitoring by remote frame (AT-11), the platform's frames of Table 4-2 and
+    the traces of Figs 4-18..4-20 (AT-2, AT-3) with the RTL master.
+
+    Verifies: NMT start all is [00][01] on id 0; parameter frames 704h..720h are
+    [02][01][00][64] (Fig 4-19 forwarded form) and reach every wheel; a node query (RTR id 0)
+    every 10 cycles is answered by RTRs 004h, 008h, 010h, 020h in ascending order (Fig 4-18);
+    a PC's query is answered by the master with RTR 002h (Table 4-2); after wheel 10h loses its
+    transmitter, the next query's window closes with OMNI_MISSING = its slot only, one
+    OMNI_CNT_NODE_MISSING, IRQ_STATUS.NODE, and NMT stop all [00][00] on the bus within 2 T_s
+    of that query (and again after every later query that still misses it); all wheels stop;
+    the master IDs on the bus are exactly those of Table 4-2.
+    """
+    tb = SystemTB(dut, node_ids=(), with_raw_node=True)
+    period_ps = PERIOD_US * PS_PER_US
+    models = [tb.bus.attach(make_slave(tb.sched, s, period_ps, SYNC_K)) for s in WHEELS]
+    await tb.reset()
+    await tb.wait_master_ready()
+    host = tb.host
+    await host.omni_mode(True)
+    for s in WHEELS:
+        await host.omni_param(s.node, oc.DTYPE_PARAMETER, b"\x00\x64")
+        await Timer(400, "us")
+    cut = {"t": None}
+
+    async def events(k: int) -> None:
+        if k == 12:
+            tb.raw.send(can.Message(arbitration_id=0x000, is_remote_frame=True, dlc=0,
+                                    is_extended_id=False))
+        if k == 25:
+            models[2].listen_only = True  # wheel 10h loses its transmitter
+            cut["t"] = sim_time_ps()
+
+    await run_rtl_cycle(tb, WHEELS, period_us=PERIOD_US, n_cycles=45, sync_k=SYNC_K,
+                        poll_m=10, query_win_us=500, stop_on_missing=True, on_cycle=events)
+    frames = tb.frames()
+    nmt = [(r.t_start_ps, bytes(r.msg.data)) for r in frames
+           if r.msg.arbitration_id == 0 and not r.msg.is_remote_frame]
+    # start all, then stop all after every query that finds the node missing
+    assert nmt[0][1] == b"\x00\x01" and nmt[1:] and {d for _, d in nmt[1:]} == {b"\x00\x00"}, nmt
+    for s, m in zip(WHEELS, models):
+        prm = [bytes(r.msg.data) for r in frames if r.msg.arbitration_id == 0x700 | s.node]
+        assert prm == [bytes([MASTER_ID, 0x01, 0x00, 0x64])], (s, prm)
+        assert m.parameters.get(oc.DTYPE_PARAMETER) == b"\x00\x64", m.parameters
+    queries = [r for r in frames if r.msg.arbitration_id == 0 and r.msg.is_remote_frame
+               and r.sender != "raw"]
+    assert len(queries) >= 4
+    first = queries[0]
+    replies = [r.msg.arbitration_id for r in frames
+               if r.msg.is_remote_frame and 0 < r.msg.arbitration_id < 0x100
+               and first.t_start_ps < r.t_start_ps < first.t_start_ps + period_ps]
+    assert replies == [0x04, 0x08, 0x10, 0x20], replies
+    pc_query = next(r for r in frames if r.sender == "raw")
+    answer = [r for r in frames if r.msg.arbitration_id == MASTER_ID and r.msg.is_remote_frame
+              and r.t_start_ps > pc_query.t_start_ps]
+    assert answer and answer[0].t_start_ps - pc_query.t_end_ps < 200 * PS_PER_US, answer
+    # the first query after the cut finds wheel 10h missing
+    q_after = next(r for r in queries if r.t_start_ps > cut["t"])
+    t_stop = nmt[1][0]
+    assert q_after.t_end_ps < t_stop <= q_after.t_start_ps + 2 * period_ps, (q_after, t_stop)
+    st = await host.omni_status()
+    assert st["missing"] == 1 << 2, st
+    stops_after_query = sum(1 for q in queries if q.t_start_ps > cut["t"])
+    assert (await host.omni_counters())["node_missing"] == stops_after_query == len(nmt) - 1
+    assert await host.irq_status() & R.IRQ_STATUS_NODE
+    assert not any(m.started for m in models)
+    ids = {(r.msg.arbitration_id, r.msg.is_remote_frame) for r in frames if r.sender != "raw"}
+    master_ids = {i for i in ids if i[0] in (0x000, 0x080, 0x102, 0x002) or i[0] >= 0x700}
+    assert master_ids <= {(0x000, False), (0x000, True), (0x080, False), (0x102, False),
+                          (0x002, True), (0x704, False), (0x708, False), (0x710, False),
+                          (0x720, False)}, master_ids
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=3000, timeout_unit="ms", skip=os.environ.get("BENCH") != "1")
+async def run_bench_omni_throughput(dut):
+    """Purpose: ``omni_broadcast_axes_per_1ms_1mbps``: axes served per 1 ms cycle at 1 Mbit/s
+    with one broadcast of set-points and one 6-byte feedback frame per axis, over 1000 cycles.
+
+    Verifies: with the largest number of feedback-sending axes (four: Omni-ID has four
+    process-data function codes towards one master, Table 4-2) every set-point reaches every
+    axis in its cycle (dropout 0) and every feedback frame reaches the host (OMNI_CNT_FB_RX =
+    4 x frames, no missed cycle); records the bus-only limit as well.
+    """
+    tb = SystemTB(dut, node_ids=(), with_raw_node=False)
+    period_ps = PERIOD_US * PS_PER_US
+    n_cycles = 1000
+    models = [tb.bus.attach(make_slave(tb.sched, s, period_ps, SYNC_K)) for s in WHEELS]
+    await tb.reset()
+    await tb.wait_master_ready()
+    mon = await run_rtl_cycle(tb, WHEELS, period_us=PERIOD_US, n_cycles=n_cycles,
+                              sync_k=SYNC_K)
+    cyc = cycle_log(tb, mon, n_cycles)
+    d_sync = delivery_latency_ps(BITRATE, oc.omni_sync_frame())
+    res = [evaluate_slave(m, SimpleNamespace(cycle_log=cyc), n_cycles - 1, s.ppm, d_sync)
+           for s, m in zip(WHEELS, models)]
+    assert all(r.n_dropout == 0 and r.n >= n_cycles - 2 for r in res), [r.summary() for r in res]
+    fb = [r for r in tb.frames() if (r.msg.arbitration_id & 0xFF) == MASTER_ID
+          and (r.msg.arbitration_id >> 8) in (2, 3, 5, 6)]
+    cnt = await tb.host.omni_counters()
+    assert cnt["fb_rx"] == len(fb) and cnt["missed"] == 0, cnt
+    per_cycle = len(fb) / n_cycles
+    assert per_cycle >= len(WHEELS) - 0.01, per_cycle
+    # the bus alone: SYNC every K cycles (amortised as one per cycle, worst case), broadcast of
+    # n 1-byte slots plus the sender byte, n 6-byte feedback frames, worst-case stuffing
+    bus_limit = max(n for n in range(1, 8)
+                    if worst_case_bits(0) + worst_case_bits(n + 1) + n * worst_case_bits(6)
+                    <= PERIOD_US * BITRATE // 1_000_000)
+    t0, t1 = cyc[0][1], cyc[-1][1]
+    record("omni", {"omni_broadcast_axes_per_1ms_1mbps": len(WHEELS),
+                    "omni_broadcast_axes_bus_limit_1mbps": bus_limit,
+                    "omni_cycle_bus_load_pct": round(100 * tb.bus.load(t0, t1), 2),
+                    "omni_skew_max_us_rtl": round(max(r.skew_max_ps for r in res) / 1e6, 3)})
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
+
+@pytest.mark.sim
+def test_omni_system(request):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
+               name=request.node.name, parameters=SYSTEM, stop_time_ms=5000,
+               ieee_asserts="disable",
+               testcase=["run_robot_drift", "run_node_monitoring_and_traces"])
+
+
+@pytest.mark.sim
+@pytest.mark.bench
+def test_bench_omni_system(request):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
+               name=request.node.name, parameters=SYSTEM, stop_time_ms=5000,
+               ieee_asserts="disable", testcase=["run_bench_omni_throughput"],
+               extra_env={"BENCH": "1"})
+
