@@ -192,14 +192,16 @@ async def run_node_monitoring_and_traces(dut):
     """Purpose: node monitoring by remote frame (AT-11), the platform's frames of Table 4-2 and
     the traces of Figs 4-18..4-20 (AT-2, AT-3) with the RTL master.
 
-    Verifies: NMT start all is [00][01] on id 0; parameter frames 704h..720h are
-    [02][01][00][64] (Fig 4-19 forwarded form) and reach every wheel; a node query (RTR id 0)
-    every 10 cycles is answered by RTRs 004h, 008h, 010h, 020h in ascending order (Fig 4-18);
-    a PC's query is answered by the master with RTR 002h (Table 4-2); after wheel 10h loses its
-    transmitter, the next query's window closes with OMNI_MISSING = its slot only, one
-    OMNI_CNT_NODE_MISSING, IRQ_STATUS.NODE, and NMT stop all [00][00] on the bus within 2 T_s
-    of that query (and again after every later query that still misses it); all wheels stop;
-    the master IDs on the bus are exactly those of Table 4-2.
+    Verifies: a configuration whose worst-case cycle exceeds the period is flagged
+    (OMNI_STATUS.INFEASIBLE) and no cycle runs; NMT start all is [00][01] on id 0; parameter
+    frames 704h..720h are [02][01][00][64] (Fig 4-19 forwarded form) and reach every wheel; a
+    node query (RTR id 0) every 10 cycles is answered by RTRs 004h, 008h, 010h, 020h in
+    ascending order (Fig 4-18); a PC's query is answered by the master with RTR 002h (Table
+    4-2); after wheel 10h loses its transmitter, the next query's window closes with
+    OMNI_MISSING = its slot only, OMNI_CNT_NODE_MISSING +1 per such query, IRQ_STATUS.NODE, NMT
+    stop all [00][00] on the bus within 2 T_s of that query (and again after every later query
+    that still misses it); all wheels stop; the master IDs on the bus are exactly those of Table
+    4-2.
     """
     tb = SystemTB(dut, node_ids=(), with_raw_node=True)
     period_ps = PERIOD_US * PS_PER_US
@@ -208,6 +210,18 @@ async def run_node_monitoring_and_traces(dut):
     await tb.wait_master_ready()
     host = tb.host
     await host.omni_mode(True)
+    # an infeasible configuration (four 6-byte feedback frames cannot fit in 300 us) is flagged
+    # and the cycle does not run, instead of running silently (AT-8)
+    await host.omni_config(n_axes=4, sync_mode=1, sync_k=SYNC_K)
+    for slot, s in enumerate(WHEELS):
+        await host.omni_slot(slot, s.node, s.fc, 6)
+    await host.write("SYNC_PERIOD_US", 300)
+    await host.write("CTRL", R.CTRL_OMNI | R.CTRL_SYNC_EN)
+    await Timer(2, "ms")
+    st = await host.omni_status()
+    assert st["INFEASIBLE"] and st["bus_bits"] > 300, st
+    assert await host.read("SYNC_COUNT") == 0 and not tb.frames(0x080), "cycle ran"
+    await host.write("CTRL", R.CTRL_OMNI)
     for s in WHEELS:
         await host.omni_param(s.node, oc.DTYPE_PARAMETER, b"\x00\x64")
         await Timer(400, "us")
