@@ -186,6 +186,92 @@ async def run_robot_drift(dut):
 
 WHEELS = ROBOT[:4]
 
+# a slow bus: 125 kbit/s (the thesis' lowest platform rate). Five receive-only axes, a broadcast
+# of 6 bytes plus the Omni SYNC take 1.36 ms worst case: infeasible at 1 ms (the thesis' 1 ms /
+# 125 kbit/s / long frame cell), feasible at 2 ms. The free-running slave drifts at 1 % so that
+# its onset comes within a short run (the drift scales: the onset index is what is compared).
+SLOW_BITRATE = 125_000
+SLOW_PERIOD_US = 2000
+SLOW_K = 20
+SLOW_CYCLES = 80
+SLOW = [
+    SlaveSpec(0x04, 1, -100.0, "sync_frame", None),
+    SlaveSpec(0x08, 2, -50.0, "sync_frame", None),
+    SlaveSpec(0x10, 3, 50.0, "sync_frame", None),
+    SlaveSpec(0x20, 4, 100.0, "sync_frame", None),
+    SlaveSpec(0x40, 5, 10_000.0, "none", None,
+              start_delay_ps=19 * SLOW_PERIOD_US * PS_PER_US // 10),
+]
+
+
+@cocotb.test(timeout_time=1000, timeout_unit="ms",
+             skip=os.environ.get("PARAM_CAN_BITRATE_BPS") != str(SLOW_BITRATE))
+async def run_slow_bus_cell(dut):
+    """Purpose: the RTL master at 125 kbit/s against the Python reference (the second cross-check
+    cell of the drift experiments).
+
+    Verifies: at T_s = 1 ms the configuration is flagged infeasible and no cycle runs; at 2 ms
+    the cycle instants are exactly 2 ms apart, the re-phased slaves have 0 % dropout and a skew
+    within |rho|·K·T_s + 2 bit times, the free-running 1 % slave starts dropping where the drift
+    model predicts; dropout, onset and skews equal the reference master's on the same network.
+    """
+    bitrate = SLOW_BITRATE
+    tau = 10**12 // bitrate
+    tb = SystemTB(dut, node_ids=(), with_raw_node=False)
+    period_ps = SLOW_PERIOD_US * PS_PER_US
+    models = [tb.bus.attach(make_slave(tb.sched, s, period_ps, SLOW_K, bitrate)) for s in SLOW]
+    await tb.reset()
+    await tb.wait_master_ready()
+    host = tb.host
+    await host.omni_mode(True)
+    await host.omni_config(n_axes=len(SLOW), sync_mode=1, sync_k=SLOW_K)
+    await host.write("SYNC_PERIOD_US", 1000)
+    await host.write("CTRL", R.CTRL_OMNI | R.CTRL_SYNC_EN)
+    await Timer(3, "ms")
+    st = await host.omni_status()
+    assert st["INFEASIBLE"] and await host.read("SYNC_COUNT") == 0, st
+    await host.write("CTRL", R.CTRL_OMNI)
+    mon = await run_rtl_cycle(tb, SLOW, period_us=SLOW_PERIOD_US, n_cycles=SLOW_CYCLES,
+                              sync_k=SLOW_K)
+    cyc = cycle_log(tb, mon, SLOW_CYCLES)
+    fires = mon.fires[:SLOW_CYCLES]
+    assert {b - a for a, b in zip(fires, fires[1:])} == {period_ps}
+    d_sync = delivery_latency_ps(bitrate, oc.omni_sync_frame())
+    res = {s.node: evaluate_slave(m, SimpleNamespace(cycle_log=cyc), SLOW_CYCLES - 1, s.ppm,
+                                  d_sync) for s, m in zip(SLOW, models)}
+    free = SLOW[-1]
+    r_free = res[free.node]
+    assert r_free.onset is not None, r_free.summary()
+    d_cmd = delivery_latency_ps(bitrate, tb.frames(0x100 | MASTER_ID)[r_free.onset + 1].msg)
+    model = n_drift_model(r_free.offsets_ps[0], free.ppm, period_ps, d_cmd)
+    assert abs(r_free.onset - model) <= 1, (r_free.onset, model)
+    nmt = tb.frames(0x000)[0]
+    ref_master, ref_models = python_reference(
+        SLOW, period_ps=period_ps, n_cycles=SLOW_CYCLES, k=SLOW_K,
+        first_cycle_delay_ps=cyc[0][1] - nmt.t_start_ps, bitrate=bitrate)
+    table = []
+    for s, m in zip(SLOW, ref_models):
+        r, r_ref = res[s.node], evaluate_slave(m, ref_master, SLOW_CYCLES - 1, s.ppm, d_sync)
+        table.append({"node": f"{s.node:02X}h", "ppm": s.ppm, "resync": s.resync,
+                      "rtl": [r.n_dropout, r.onset, round(r.skew_max_ps / 1e6, 3)],
+                      "reference": [r_ref.n_dropout, r_ref.onset,
+                                    round(r_ref.skew_max_ps / 1e6, 3)]})
+        if s.resync == "sync_frame":
+            assert r.n_dropout == 0, (s, r.summary())
+            assert r.skew_max_ps <= abs(s.ppm) * 1e-6 * SLOW_K * period_ps + 2 * tau, (s, r)
+            assert abs(r.skew_max_ps - r_ref.skew_max_ps) <= 2 * tau, (s, r, r_ref)
+        assert abs(r.n_dropout - r_ref.n_dropout) <= 1, (s, r.summary(), r_ref.summary())
+        assert (r.onset is None) == (r_ref.onset is None)
+        if r.onset is not None:
+            assert abs(r.onset - r_ref.onset) <= 1, (s, r.onset, r_ref.onset)
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "slow_bus_crosscheck.json").write_text(json.dumps(
+        {"bitrate": bitrate, "cycles": SLOW_CYCLES, "period_us": SLOW_PERIOD_US,
+         "sync_k": SLOW_K, "free_running_onset_model": model, "slaves": table},
+        indent=2) + "\n")
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
 
 @cocotb.test(timeout_time=500, timeout_unit="ms")
 async def run_node_monitoring_and_traces(dut):
@@ -326,6 +412,13 @@ def test_omni_system(request):
                name=request.node.name, parameters=SYSTEM, stop_time_ms=5000,
                ieee_asserts="disable",
                testcase=["run_robot_drift", "run_node_monitoring_and_traces"])
+
+
+@pytest.mark.sim
+def test_omni_system_125k(request):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
+               name=request.node.name, parameters={**SYSTEM, "CAN_BITRATE_BPS": SLOW_BITRATE},
+               stop_time_ms=5000, ieee_asserts="disable", testcase=["run_slow_bus_cell"])
 
 
 @pytest.mark.sim

@@ -42,8 +42,9 @@ class SlaveSpec:
     cycle_offset: int | None = None  #: sample n needs cycle n + offset (slave default if None)
 
 
-def make_slave(sched: Scheduler, spec: SlaveSpec, period_ps: int, k: int) -> OmniSlave:
-    return OmniSlave(sched, spec.node, bitrate_bps=BITRATE, period_ps=period_ps,
+def make_slave(sched: Scheduler, spec: SlaveSpec, period_ps: int, k: int,
+               bitrate: int = BITRATE) -> OmniSlave:
+    return OmniSlave(sched, spec.node, bitrate_bps=bitrate, period_ps=period_ps,
                      clock=clock_for_period_error(spec.ppm), master_id=MASTER_ID,
                      axis=spec.axis, feedback_fc=spec.fc, feedback=spec.fc is not None,
                      resync=spec.resync, resync_k=k, start_delay_ps=spec.start_delay_ps,
@@ -118,15 +119,15 @@ def cycle_log(tb: SystemTB, mon: TxRtsMonitor, n_cycles: int) -> list[tuple[int,
 
 
 def python_reference(slaves: list[SlaveSpec], *, period_ps: int, n_cycles: int, k: int,
-                     first_cycle_delay_ps: int):
+                     first_cycle_delay_ps: int, bitrate: int = BITRATE):
     """The same network with the transaction-level reference master."""
     sched = Scheduler()
-    bus = CanBus(sched, BITRATE)
-    master = OmniMaster(sched, bitrate_bps=BITRATE, period_ps=period_ps, n_axes=len(slaves),
+    bus = CanBus(sched, bitrate)
+    master = OmniMaster(sched, bitrate_bps=bitrate, period_ps=period_ps, n_axes=len(slaves),
                         sync_every=k, n_cycles=n_cycles,
                         first_cycle_delay_ps=first_cycle_delay_ps)
     bus.attach(master)
-    models = [bus.attach(make_slave(sched, s, period_ps, k)) for s in slaves]
+    models = [bus.attach(make_slave(sched, s, period_ps, k, bitrate)) for s in slaves]
     master.start()
     sched.run_until(period_ps * (n_cycles + 3))
     return master, models
