@@ -119,6 +119,7 @@ entity canopen_host_regs is
         bus_off_i     : in    std_logic;                     -- bus-off
         err_passive_i : in    std_logic;                     -- error passive
         nmt_busy_i    : in    std_logic;                     -- NMT command being sent
+        nmt_refused_i : in    std_logic;                     -- sticky: NMT_CMD write refused
         sync_count_i  : in    std_logic_vector(31 downto 0); -- SYNC frames sent
         time_us_i     : in    std_logic_vector(31 downto 0); -- free-running us counter
         tec_i         : in    std_logic_vector(7 downto 0);  -- transmit error counter
@@ -615,7 +616,8 @@ begin
             or at(bus_off_i, STATUS_BUS_OFF_C) or at(err_passive_i, STATUS_ERR_PASSIVE_C));
         put(REG_IRQ_STATUS_C, at(irq_status, irq_bits_c - 1, 0));
         put(REG_IRQ_ENABLE_C, at(irq_enable, irq_bits_c - 1, 0));
-        put(REG_NMT_CMD_C, at(nmt_busy_i, NMT_CMD_NMT_BUSY_C));
+        put(REG_NMT_CMD_C,
+            at(nmt_busy_i, NMT_CMD_NMT_BUSY_C) or at(nmt_refused_i, NMT_CMD_REFUSED_C));
         put(REG_SYNC_PERIOD_US_C, sync_period);
         put(REG_SYNC_OVERFLOW_C,
             at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C));

@@ -43,6 +43,7 @@ entity canopen_master_core is
         N_RPDO            : positive range 1 to 32  := 8;          -- PDO channels received
         CFG_DEPTH         : positive range 2 to 256 := 64;         -- configuration list entries
         CAN_BITRATE_BPS   : positive                := 1_000_000;  -- for Omni-ID feasibility
+        OMNI_ENABLE       : boolean                 := true;       -- build the Omni-ID engine
         WATCHDOG_US       : positive                := 20_000;     -- longest wait in one state
         REINIT_BACKOFF_MS : positive                := 100;        -- between init attempts
         STATUS_POLL_MS    : positive                := 10          -- TEC/REC/EFLG refresh period
@@ -222,6 +223,7 @@ architecture rtl of canopen_master_core is
     signal gen_src : natural range 0 to 5;
     -- host NMT command waiting
     signal nmt_pending  : std_logic;
+    signal nmt_refused  : std_logic;
     signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
     signal nmt_cmd_node : std_logic_vector(6 downto 0);
     -- SYNC producer
@@ -230,6 +232,7 @@ architecture rtl of canopen_master_core is
     signal sync_late    : std_logic;
     signal sync_counter : unsigned(7 downto 0);
     signal sync_count   : unsigned(31 downto 0);
+    signal sync_sent    : unsigned(7 downto 0);
     signal sync_fire    : std_logic;
     -- error latch (St13)
     signal err_can    : std_logic;
@@ -368,7 +371,8 @@ architecture rtl of canopen_master_core is
     signal pe_rx_reply  : std_logic;
     signal pe_rx_unexp  : std_logic;
 
-    -- Omni-ID mode (CTRL.OMNI) and the Omni-ID engine
+    -- Omni-ID mode: CTRL.OMNI as written, and in effect (only with the engine built)
+    signal omni_req     : std_logic;
     signal omni_en      : std_logic;
     signal om_reg_rdata : std_logic_vector(31 downto 0);
     signal om_tx_req    : std_logic;
@@ -525,12 +529,14 @@ begin
             tx_requested     <= '0';
             gen_src          <= 0;
             nmt_pending      <= '0';
+            nmt_refused      <= '0';
             acfg_nmt_pending <= '0';
             sync_timer       <= (others => '0');
             sync_loaded      <= '0';
             sync_late        <= '0';
             sync_counter     <= to_unsigned(1, 8);
             sync_count       <= (others => '0');
+            sync_sent        <= (others => '0');
             sync_fire        <= '0';
             err_can          <= '0';
             err_busoff       <= '0';
@@ -568,7 +574,11 @@ begin
             end if;
 
             -- host NMT command --------------------------------------------------------------
-            if nmt_req = '1' and omni_en = '0' then
+            -- a write while one is pending (or in Omni-ID mode) is refused, never overwrites
+            if nmt_req = '1' and (nmt_pending = '1' or omni_en = '1') then
+                nmt_refused <= '1';
+            elsif nmt_req = '1' then
+                nmt_refused  <= '0';
                 nmt_pending  <= '1';
                 nmt_cmd_cs   <= nmt_cs;
                 nmt_cmd_node <= nmt_node;
@@ -713,6 +723,13 @@ begin
             if sync_fire = '1' then
                 sync_loaded <= '0';
                 sync_count  <= sync_count + 1;
+                -- what the PDOs of this cycle belong to: the counter byte of the SYNC just sent,
+                -- or (SYNC without counter byte) the number of SYNCs sent, modulo 256
+                if unsigned(sync_overflow) >= 2 then
+                    sync_sent <= sync_counter;
+                else
+                    sync_sent <= sync_count(7 downto 0) + 1;
+                end if;
                 if unsigned(sync_overflow) >= 2 and sync_counter >= unsigned(sync_overflow) then
                     sync_counter <= to_unsigned(1, 8);
                 elsif unsigned(sync_overflow) >= 2 then
@@ -988,7 +1005,7 @@ begin
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
             sync_i          => sync_fire and not omni_en,
-            sync_count_i    => std_logic_vector(sync_counter),
+            sync_count_i    => std_logic_vector(sync_sent),
             window_open_i   => window_open,
             tick_us_i       => tick_us,
             reg_addr_i      => pdo_reg_addr,
@@ -1019,42 +1036,67 @@ begin
     -- Omni-ID engine (CTRL.OMNI): NCTU Omni-ID protocol. It takes the PDO engine's place in St5 and
     -- St8 and in the PDO_WIN window, and gives the SYNC producer its cycle frame (TXB2)
     -- ---------------------------------------------------------------------------------------------
-    omni_inst : entity work.omni_engine
-        generic map (
-            BITRATE_BPS => CAN_BITRATE_BPS
-        )
-        port map (
-            clk_i           => clk_i,
-            rst_n_i         => rst_n_i,
-            enable_i        => omni_en,
-            tick_us_i       => tick_us,
-            period_us_i     => sync_period_us,
-            cycle_i         => sync_fire and omni_en,
-            cyc_id_o        => om_cyc_id,
-            cyc_dlc_o       => om_cyc_dlc,
-            cyc_data_o      => om_cyc_data,
-            cyc_take_i      => om_cyc_take,
-            feasible_o      => om_feasible,
-            reg_addr_i      => pdo_reg_addr,
-            reg_we_i        => pdo_reg_we and omni_en,
-            reg_wdata_i     => pdo_reg_wdata,
-            reg_rdata_o     => om_reg_rdata,
-            rx_valid_i      => enter_pdo and omni_en,
-            rx_id_i         => rx_frame.id,
-            rx_rtr_i        => rx_frame.rtr,
-            rx_dlc_i        => rx_frame.dlc,
-            rx_data_i       => rx_frame.data,
-            rx_done_o       => om_rx_done,
-            rx_reply_o      => om_rx_reply,
-            rx_unexpected_o => om_rx_unexp,
-            tx_req_o        => om_tx_req,
-            tx_id_o         => om_tx_id,
-            tx_rtr_o        => om_tx_rtr,
-            tx_dlc_o        => om_tx_dlc,
-            tx_data_o       => om_tx_data,
-            tx_ack_i        => pdo_tx_ack and omni_en,
-            ev_o            => om_ev
-        );
+    omni_en <= omni_req when OMNI_ENABLE else
+               '0';
+
+    omni_gen : if OMNI_ENABLE generate
+
+        omni_inst : entity work.omni_engine
+            generic map (
+                BITRATE_BPS => CAN_BITRATE_BPS
+            )
+            port map (
+                clk_i           => clk_i,
+                rst_n_i         => rst_n_i,
+                enable_i        => omni_en,
+                tick_us_i       => tick_us,
+                period_us_i     => sync_period_us,
+                cycle_i         => sync_fire and omni_en,
+                cyc_id_o        => om_cyc_id,
+                cyc_dlc_o       => om_cyc_dlc,
+                cyc_data_o      => om_cyc_data,
+                cyc_take_i      => om_cyc_take,
+                feasible_o      => om_feasible,
+                reg_addr_i      => pdo_reg_addr,
+                reg_we_i        => pdo_reg_we and omni_en,
+                reg_wdata_i     => pdo_reg_wdata,
+                reg_rdata_o     => om_reg_rdata,
+                rx_valid_i      => enter_pdo and omni_en,
+                rx_id_i         => rx_frame.id,
+                rx_rtr_i        => rx_frame.rtr,
+                rx_dlc_i        => rx_frame.dlc,
+                rx_data_i       => rx_frame.data,
+                rx_done_o       => om_rx_done,
+                rx_reply_o      => om_rx_reply,
+                rx_unexpected_o => om_rx_unexp,
+                tx_req_o        => om_tx_req,
+                tx_id_o         => om_tx_id,
+                tx_rtr_o        => om_tx_rtr,
+                tx_dlc_o        => om_tx_dlc,
+                tx_data_o       => om_tx_data,
+                tx_ack_i        => pdo_tx_ack and omni_en,
+                ev_o            => om_ev
+            );
+
+    else generate
+
+        -- CANopen-only build: CTRL.OMNI has no effect, PDO_WIN always shows the PDO engine
+        om_reg_rdata <= (others => '0');
+        om_tx_req    <= '0';
+        om_tx_id     <= (others => '0');
+        om_tx_rtr    <= '0';
+        om_tx_dlc    <= (others => '0');
+        om_tx_data   <= (others => '0');
+        om_rx_done   <= '0';
+        om_rx_reply  <= '0';
+        om_rx_unexp  <= '0';
+        om_cyc_id    <= (others => '0');
+        om_cyc_dlc   <= (others => '0');
+        om_cyc_data  <= (others => '0');
+        om_feasible  <= '0';
+        om_ev        <= '0';
+
+    end generate omni_gen;
 
     -- the cycle frame is taken when St11 encapsulates the SYNC-source frame
     om_cyc_take <= '1' when in_encap = '1' and gen_src = 0 and omni_en = '1' else
@@ -1182,7 +1224,7 @@ begin
             avs_readdatavalid_o      => avs_readdatavalid_o,
             irq_o                    => irq_o,
             sync_en_o                => sync_en,
-            omni_en_o                => omni_en,
+            omni_en_o                => omni_req,
             reinit_o                 => host_reinit,
             nmt_req_o                => nmt_req,
             nmt_cs_o                 => nmt_cs,
@@ -1232,6 +1274,7 @@ begin
             bus_off_i                => can_eflg(eflg_txbo_c),
             err_passive_i            => can_eflg(4) or can_eflg(3),
             nmt_busy_i               => nmt_pending,
+            nmt_refused_i            => nmt_refused,
             sync_count_i             => std_logic_vector(sync_count),
             time_us_i                => std_logic_vector(time_us),
             tec_i                    => can_tec,

@@ -31,6 +31,7 @@ entity canopen_master_top is
         N_TPDO          : positive range 1 to 32    := 8;          -- PDO channels sent
         N_RPDO          : positive range 1 to 32    := 8;          -- PDO channels received
         CFG_DEPTH       : positive range 2 to 256   := 64;         -- configuration list entries
+        OMNI_ENABLE     : boolean                   := true;       -- build the Omni-ID engine
         RX_FIFO_DEPTH   : positive range 1 to 16    := 4;          -- received frames buffered
         WATCHDOG_US     : positive                  := 20_000;     -- longest wait per FSM state
         RESET_WAIT_US   : positive                  := 20          -- MCP2510 start-up wait [us]
@@ -130,6 +131,7 @@ begin
             N_RPDO          => N_RPDO,
             CFG_DEPTH       => CFG_DEPTH,
             CAN_BITRATE_BPS => CAN_BITRATE_BPS,
+            OMNI_ENABLE     => OMNI_ENABLE,
             WATCHDOG_US     => WATCHDOG_US
         )
         port map (

@@ -216,7 +216,8 @@ package canopen_regs_pkg is
     constant NMT_CMD_CS_LO_C    : natural := 0;
     constant NMT_CMD_NODE_HI_C  : natural := 14; -- WO: target node-ID, 0 = all nodes
     constant NMT_CMD_NODE_LO_C  : natural := 8;
-    constant NMT_CMD_NMT_BUSY_C : natural := 31; -- RO: an NMT command is being sent
+    constant NMT_CMD_REFUSED_C  : natural := 30; -- RO
+    constant NMT_CMD_NMT_BUSY_C : natural := 31; -- RO
 
     -- SYNC_PERIOD_US
     constant SYNC_PERIOD_US_VALUE_HI_C : natural := 31; -- RW: period in us, 0 = SYNC off

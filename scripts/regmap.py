@@ -150,7 +150,8 @@ REGISTERS: tuple[Register, ...] = (
                                "mode: the periodic command cycle runs"),
       F("OMNI", 1, "RW", 0, "1: Omni-ID protocol mode (one protocol per bus): the CANopen "
                             "services are off, every frame goes to the Omni-ID engine and "
-                            "PDO_WIN shows its registers; change only while SYNC_EN = 0"),
+                            "PDO_WIN shows its registers; change only while SYNC_EN = 0; no "
+                            "effect in a build with OMNI_ENABLE = false"),
       F("REINIT", 8, "pulse", 0, "write 1: re-initialise the CAN controller and the master"),
       F("CLR_COUNTERS", 9, "pulse", 0, "write 1: clear every CNT_* register")),
     R("STATUS", 0x03, "RO", "master status",
@@ -169,7 +170,9 @@ REGISTERS: tuple[Register, ...] = (
       F("CS", "7:0", "WO", None, "command specifier (01h start, 02h stop, 80h pre-op, "
                                  "81h reset node, 82h reset communication)"),
       F("NODE", "14:8", "WO", None, "target node-ID, 0 = all nodes"),
-      F("NMT_BUSY", 31, "RO", None, "an NMT command is being sent")),
+      F("REFUSED", 30, "RO", None, "sticky: a write while NMT_BUSY (or in Omni-ID mode) was "
+                                   "refused, nothing sent; cleared by the next accepted write"),
+      F("NMT_BUSY", 31, "RO", None, "an NMT command is being sent; write only when 0")),
     R("SYNC_PERIOD_US", 0x07, "RW", "SYNC period (CiA 301 1006h)",
       F("VALUE", "31:0", "RW", 0, "period in us, 0 = SYNC off")),
     R("SYNC_OVERFLOW", 0x08, "RW", "SYNC counter overflow value (CiA 301 1019h)",
@@ -340,8 +343,9 @@ PDO_REGISTERS: tuple[Register, ...] = (
     R("PDO_SEQ", 0xC9, "RO", "sequence number of the selected channel",
       F("SEQ", "15:0", "RO", None, "TPDO: frames taken by the master (wraps); RPDO "
                                    "(snapshot): PDOs stored (wraps)"),
-      F("SYNC_COUNT", "23:16", "RO", None, "RPDO (snapshot): sync_count_i when the data was "
-                                           "stored")),
+      F("SYNC_COUNT", "23:16", "RO", None, "RPDO (snapshot): the SYNC the data belongs to: "
+                                           "counter byte of the last SYNC before it (without "
+                                           "counter byte: SYNCs sent mod 256)")),
     R("PDO_ERR", 0xCA, "RO", "RPDO error counters of the selected channel",
       F("LEN_ERR", "15:0", "RO", None, "frames with a DLC other than PDO_CFG.DLC (saturates)"),
       F("MISSED", "31:16", "RO", None, "synchronous cycles without the PDO (saturates)")),

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Synthesis checks and resource estimates for every entity in ``rtl/files.f``.
 
-``--check``  (``make test``): ``ghdl --synth`` of every entity with its default generics,
+``--check``  (``make test``): ``ghdl --synth`` of every entity with its default generics (and
+             of the builds in ``VARIANTS``, e.g. the CANopen-only top with OMNI_ENABLE = false),
              producing the same Verilog netlist as ``make synth`` (then discarded). GHDL
              rejects latches (no ``--latches``), ``wait for`` and other non-synthesizable code,
              and evaluates the elaboration-time assertions.
@@ -85,12 +86,23 @@ def add_case_defaults(verilog: str) -> str:
     return "\n".join(out) + "\n"
 
 
+#: builds reported besides each entity with its defaults: report name -> (entity, generics)
+VARIANTS = {"canopen_master_top_canopen_only": ("canopen_master_top", ["-gOMNI_ENABLE=false"])}
+
+
+def targets(names: list[str]) -> list[tuple[str, str, list[str]]]:
+    """(report name, entity, generic options) of every build to check or estimate."""
+    return [(n, n, []) for n in names] + [(k, e, g) for k, (e, g) in VARIANTS.items()
+                                          if e in names]
+
+
 def check(names: list[str]) -> int:
     work = OUT / "check"
     analyse(work)
     failed = 0
-    for name in names:
-        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=verilog", name], work)
+    for name, entity, gens in targets(names):
+        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", *gens, "--out=verilog",
+                   entity], work)
         status = "ok" if res.returncode == 0 else "FAILED"
         print(f"ghdl --synth {name:32s} {status}")
         if res.returncode:
@@ -105,14 +117,15 @@ def estimate(names: list[str]) -> dict[str, dict[str, int]]:
     work = OUT / "work"
     analyse(work)
     report: dict[str, dict[str, int]] = {}
-    for name in names:
-        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", "--out=verilog", name], work)
+    for name, entity, gens in targets(names):
+        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", *gens, "--out=verilog",
+                   entity], work)
         if res.returncode:
             sys.exit(f"ghdl --synth {name} failed:\n{res.stderr}")
         vfile = work / f"{name}.v"
         vfile.write_text(add_case_defaults(res.stdout))
         script = (
-            f"read_verilog {vfile}; synth_intel -family cycloneiv -top {name}; "
+            f"read_verilog {vfile}; synth_intel -family cycloneiv -top {entity}; "
             f"tee -o {work / (name + '.stat')} stat"
         )
         yres = run(["yosys", "-q", "-l", str(work / f"{name}.yosys.log"), "-p", script], work)

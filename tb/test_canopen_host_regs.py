@@ -38,7 +38,8 @@ CLK_HZ = 50_000_000
 #: every status input, with its width (slot-wide ones multiplied by MAX_NODES at run time)
 STATUS_INPUTS = {
     "fsm_state_i": 4, "init_done_i": 1, "init_fail_i": 1, "ctrl_busy_i": 1, "tx_pending_i": 3,
-    "bus_off_i": 1, "err_passive_i": 1, "nmt_busy_i": 1, "sync_count_i": 32, "time_us_i": 32,
+    "bus_off_i": 1, "err_passive_i": 1, "nmt_busy_i": 1, "nmt_refused_i": 1, "sync_count_i": 32,
+    "time_us_i": 32,
     "tec_i": 8, "rec_i": 8, "eflg_i": 8, "emcy_count_i": 7, "emcy_lost_i": 1, "emcy_node_i": 7,
     "emcy_data_i": 64, "emcy_time_i": 32, "sdo_busy_i": 1, "sdo_error_i": 1,
     "sdo_abort_code_i": 32, "sdo_abort_sent_i": 1, "sdo_size_i": 11,
@@ -65,7 +66,7 @@ RO_SOURCES = {
     ("STATUS", "INIT_FAIL"): ("init_fail_i", 0), ("STATUS", "CTRL_BUSY"): ("ctrl_busy_i", 0),
     ("STATUS", "TX_PENDING"): ("tx_pending_i", 0), ("STATUS", "BUS_OFF"): ("bus_off_i", 0),
     ("STATUS", "ERR_PASSIVE"): ("err_passive_i", 0),
-    ("NMT_CMD", "NMT_BUSY"): ("nmt_busy_i", 0),
+    ("NMT_CMD", "NMT_BUSY"): ("nmt_busy_i", 0), ("NMT_CMD", "REFUSED"): ("nmt_refused_i", 0),
     ("SYNC_COUNT", "VALUE"): ("sync_count_i", 0), ("TIME_US", "VALUE"): ("time_us_i", 0),
     ("CAN_STATUS", "TEC"): ("tec_i", 0), ("CAN_STATUS", "REC"): ("rec_i", 0),
     ("CAN_STATUS", "EFLG"): ("eflg_i", 0),

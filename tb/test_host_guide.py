@@ -113,7 +113,51 @@ async def run_guide_example(dut):
     sent = {bytes(r.msg.data) for r in tb.frames(0x203)}
     assert sent == {bytes.fromhex("0F0040E20100")}, sent
     tb.check_models_clean()
+    # leave no SPI transfer in flight for the next test's fresh MCP2510 model
+    while int(dut.spi_cs_n_o.value) != 1:
+        await Timer(100, "ns")
+    dut.rst_n_i.value = 0
+    await Timer(5, "us")
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_nmt_write_while_busy_refused(dut):
+    """Purpose: an NMT_CMD write while the previous command is still pending is refused and
+    reported, never overwrites it (nothing lost silently).
+
+    Verifies: two back-to-back NMT_CMD writes (start node 3, then stop node 3) put only the
+    first on the bus and set NMT_CMD.REFUSED; the next write after NMT_BUSY fell is accepted
+    and clears REFUSED; the driver's nmt() waits for NMT_BUSY and is never refused.
+    """
+    tb = SystemTB(dut)
+    await tb.reset()
+    host = tb.host
+    await tb.wait_master_ready()
+    n0 = len(tb.frames(0x000))
+    await host.write(0x06, 0x00000301)   # start node 3
+    await host.write(0x06, 0x00000302)   # stop node 3, while the start is still pending
+    assert await host.read(0x06) & (1 << 30), "REFUSED not set"
+    await poll_clear(tb, 0x06, 1 << 31, "NMT_BUSY")
+    await Timer(300, "us")
+    assert [bytes(r.msg.data) for r in tb.frames(0x000)[n0:]] == [b"\x01\x03"]
+    await host.write(0x06, 0x00000302)   # accepted now
+    assert not await host.read(0x06) & (1 << 30), "REFUSED not cleared"
+    for node in (1, 2, 4):
+        await host.nmt(0x01, node)       # back to back through the driver: none refused
+        assert not await host.read(0x06) & (1 << 30)
+    await Timer(1, "ms")
+    got = [bytes(r.msg.data) for r in tb.frames(0x000)[n0:]]
+    assert got == [b"\x01\x03", b"\x02\x03", b"\x01\x01", b"\x01\x02", b"\x01\x04"], got
+    tb.check_models_clean()
     await Timer(1, "ns")
+
+
+async def poll_clear(tb: SystemTB, addr: int, mask: int, what: str, limit_us: int = 5000) -> None:
+    for _ in range(limit_us // 10):
+        if not await tb.host.read(addr) & mask:
+            return
+        await Timer(10, "us")
+    raise AssertionError(f"{what} still set after {limit_us} us")
 
 
 @pytest.mark.sim

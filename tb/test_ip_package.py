@@ -8,7 +8,8 @@ this file. It parses the ``_hw.tcl`` with regular expressions and compares it wi
 * every port of the entity is mapped by exactly one ``add_interface_port`` with the same
   direction and width, and every ``add_interface_port`` names a real port of a declared interface;
 * every generic is an ``add_parameter`` of the same name, type INTEGER, the same default and the
-  same allowed range (VHDL ``positive``/``natural``/``range a to b``), with ``HDL_PARAMETER true``;
+  same allowed range (VHDL ``positive``/``natural``/``range a to b``), or type BOOLEAN with the
+  same default (VHDL ``boolean``), with ``HDL_PARAMETER true``;
 * the QUARTUS_SYNTH and SIM_VHDL filesets list exactly ``rtl/files.f``, in order, with the top
   level ``canopen_master_top``;
 * the Avalon-MM slave's address width equals ``avs_address_i``'s, it uses word addressing, fixed
@@ -51,7 +52,7 @@ PD_DIRECTION = {"in": "Input", "out": "Output", "inout": "Bidir"}
 class Generic:
     name: str
     subtype: str
-    default: int
+    default: int | bool
     lo: int
     hi: int
 
@@ -67,6 +68,10 @@ class Port:
 _GENERIC_RE = re.compile(
     r"^(?P<names>\w+(?:\s*,\s*\w+)*)\s*:\s*(?P<type>positive|natural|integer)"
     r"(?:\s+range\s+(?P<lo>-?[\d_]+)\s+to\s+(?P<hi>-?[\d_]+))?\s*:=\s*(?P<default>-?[\d_]+)$",
+    re.IGNORECASE,
+)
+_BOOL_GENERIC_RE = re.compile(
+    r"^(?P<names>\w+(?:\s*,\s*\w+)*)\s*:\s*boolean\s*:=\s*(?P<default>true|false)$",
     re.IGNORECASE,
 )
 _PORT_RE = re.compile(
@@ -118,6 +123,11 @@ def entity_interface(text: str, entity: str = TOP_ENTITY) -> tuple[list[Generic]
     generic_part = body[:port_at.start()] if port_at else body
     generics: list[Generic] = []
     for decl in _declarations(_paren_body(generic_part, "generic")):
+        b = _BOOL_GENERIC_RE.match(decl)
+        if b is not None:
+            generics += [Generic(n.strip(), "boolean", b["default"].lower() == "true", 0, 1)
+                         for n in b["names"].split(",")]
+            continue
         g = _GENERIC_RE.match(decl)
         if g is None:
             raise AssertionError(f"generic declaration this checker cannot read: {decl!r}")
@@ -263,6 +273,15 @@ def generic_problems(comp: Component, generics: list[Generic]) -> list[str]:
         p = comp.params.get(g.name)
         if p is None:
             problems.append(f"generic {g.name} has no add_parameter {g.name}")
+            continue
+        if g.subtype == "boolean":
+            if p.get("TYPE", "").upper() != "BOOLEAN":
+                problems.append(f"parameter {g.name}: TYPE {p.get('TYPE')}, expected BOOLEAN")
+            if p.get("DEFAULT_VALUE", "").lower() != str(g.default).lower():
+                problems.append(f"parameter {g.name}: default {p.get('DEFAULT_VALUE')}, "
+                                f"generic default {str(g.default).lower()}")
+            if p.get("HDL_PARAMETER", "false").lower() not in {"true", "1"}:
+                problems.append(f"parameter {g.name} is not HDL_PARAMETER true")
             continue
         if p.get("TYPE", "").upper() != "INTEGER":
             problems.append(f"parameter {g.name}: TYPE {p.get('TYPE')}, expected INTEGER")
@@ -510,7 +529,7 @@ def test_checks_can_fail():
 
 def test_entity_parser_rejects_what_it_cannot_read():
     """A generic of a type the checker does not know stops the test instead of being skipped."""
-    vhdl = _sub_once(TOP_VHD.read_text(), r"(CLK_FREQ_HZ\s*:)", r"USE_X : boolean := true; \1")
+    vhdl = _sub_once(TOP_VHD.read_text(), r"(CLK_FREQ_HZ\s*:)", r"USE_X : real := 1.0; \1")
     with pytest.raises(AssertionError, match="generic declaration this checker cannot read"):
         entity_interface(vhdl)
 

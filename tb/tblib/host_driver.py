@@ -154,7 +154,14 @@ class CanopenMasterHost:
 
     # ------------------------------------------------------------------ NMT and SYNC
     async def nmt(self, cs: int, node: int = 0) -> None:
-        """Send NMT command ``cs`` to ``node`` (0 = all nodes)."""
+        """Send NMT command ``cs`` to ``node`` (0 = all nodes), after the previous one left
+        (a write while NMT_BUSY is refused by the core: NMT_CMD.REFUSED)."""
+        for _ in range(self.max_polls):
+            if not await self.read("NMT_CMD") & R.NMT_CMD_NMT_BUSY:
+                break
+            await ClockCycles(self.clock, self.poll_cycles)
+        else:
+            raise TimeoutError(f"NMT_CMD.NMT_BUSY still set after {self.max_polls} polls")
         await self.write("NMT_CMD", R.make("NMT_CMD", CS=cs, NODE=node))
 
     async def nmt_busy(self) -> bool:

@@ -185,6 +185,7 @@ NMT_CMD_CS_SHIFT = 0
 NMT_CMD_CS_MASK = 0xFF  # bits 7:0, WO
 NMT_CMD_NODE_SHIFT = 8
 NMT_CMD_NODE_MASK = 0x7F00  # bits 14:8, WO
+NMT_CMD_REFUSED = 0x40000000  # bit 30, RO
 NMT_CMD_NMT_BUSY = 0x80000000  # bit 31, RO
 # SYNC_PERIOD_US
 SYNC_PERIOD_US_VALUE_SHIFT = 0
@@ -714,6 +715,7 @@ REGISTERS: dict[str, RegInfo] = {
         fields={
             "CS": FieldInfo(7, 0, "WO", None),
             "NODE": FieldInfo(14, 8, "WO", None),
+            "REFUSED": FieldInfo(30, 30, "RO", None),
             "NMT_BUSY": FieldInfo(31, 31, "RO", None),
         },
     ),

@@ -3,13 +3,18 @@
 It wakes only on CS, SCK and MOSI changes (never per clock), forwards the levels with the
 simulated time in ps, and drives MISO with what the slave model returns ('Z' when the device
 does not drive SO). A violation raised by the model fails the running cocotb test.
+
+Each pin has its own watcher coroutine waiting on one ``ValueChange``: a ``First`` over the
+three triggers would start and cancel a task per trigger on every edge, which made the bridge
+the largest cost of the system simulations (three times the Python time of everything else).
+The watchers hand a model error to :attr:`SpiPinBridge.task`, which raises it.
 """
 
 from __future__ import annotations
 
 import cocotb
 from cocotb.handle import SimHandleBase
-from cocotb.triggers import First, ValueChange
+from cocotb.triggers import Event, ValueChange
 from cocotb.types import Logic
 
 from sim_models.spi_slave import SpiPinSlave, SpiViolation
@@ -36,10 +41,18 @@ class SpiPinBridge:
         self._mosi = mosi
         self._miso = miso
         self._miso.value = _HIGH_Z
-        #: the bridge coroutine (a test may await it to catch a violation it raises)
+        #: levels and time of the last update (two pins changing together wake two watchers)
+        self._last: tuple[int, int, int, int] | None = None
+        self._error: BaseException | None = None
+        self._failed = Event()
+        self._watchers = [cocotb.start_soon(self._watch(sig)) for sig in (cs_n, sck, mosi)]
+        #: the bridge coroutine: ends with the error the model raised (a test may await it to
+        #: catch a violation); it never ends otherwise
         self.task = cocotb.start_soon(self._run())
 
     def stop(self) -> None:
+        for w in self._watchers:
+            w.cancel()
         self.task.cancel()
 
     def _level(self, sig: SimHandleBase, what: str, t_ps: int) -> int:
@@ -49,16 +62,34 @@ class SpiPinBridge:
         return int(v)
 
     async def _run(self) -> None:
+        await self._failed.wait()
+        assert self._error is not None
+        raise self._error
+
+    async def _watch(self, sig: SimHandleBase) -> None:
+        while self._error is None:
+            await ValueChange(sig)
+            if self._error is not None:
+                return
+            try:
+                self._on_change()
+            except Exception as e:  # handed to self.task, which raises it
+                self._error = e
+                self._failed.set()
+
+    def _on_change(self) -> None:
         cs_n, sck, mosi = self._cs_n, self._sck, self._mosi
-        while True:
-            await First(ValueChange(cs_n), ValueChange(sck), ValueChange(mosi))
-            t_ps = sim_time_ps()
-            c = self._level(cs_n, "CS", t_ps)
-            s = self._level(sck, "SCK", t_ps)
-            if c == 0 or mosi.value.is_resolvable:
-                m = self._level(mosi, "MOSI", t_ps)
-            else:
-                m = self.slave._mosi  # MOSI may float while CS is high
-            self.slave.update(t_ps, cs_n=c, sck=s, mosi=m)
-            out = self.slave.miso
-            self._miso.value = _HIGH_Z if out is None else out
+        t_ps = sim_time_ps()
+        c = self._level(cs_n, "CS", t_ps)
+        s = self._level(sck, "SCK", t_ps)
+        if c == 0 or mosi.value.is_resolvable:
+            m = self._level(mosi, "MOSI", t_ps)
+        else:
+            m = self.slave._mosi  # MOSI may float while CS is high
+        key = (t_ps, c, s, m)
+        if key == self._last:
+            return
+        self._last = key
+        self.slave.update(t_ps, cs_n=c, sck=s, mosi=m)
+        out = self.slave.miso
+        self._miso.value = _HIGH_Z if out is None else out
