@@ -423,6 +423,7 @@ def test_omni_system_125k(request):
 
 @pytest.mark.sim
 @pytest.mark.bench
+@pytest.mark.timeout(2400)  # 1000 cycles of the full core: about 17 min next to the other benches
 def test_bench_omni_system(request):
     run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
                name=request.node.name, parameters=SYSTEM, stop_time_ms=5000,
