@@ -9,6 +9,7 @@ from sim_models.canopen_slave.cia402 import STATUSWORD, DriveState
 from sim_models.canopen_slave.network import SimNetwork, SimPeriodicTask, make_message
 from sim_models.canopen_slave.pdo import MapEntry, RpdoLengthError, encode_map_entry
 from sim_models.canopen_slave.slave import (
+    CONTROL_RESYNC_MODES,
     DEFAULT_BOOT_TIME_PS,
     DEFAULT_EDS,
     CanopenSlave,
@@ -20,6 +21,7 @@ from sim_models.canopen_slave.slave import (
 from sim_models.canopen_slave.timers import LocalTimer, true_after_local
 
 __all__ = [
+    "CONTROL_RESYNC_MODES",
     "DEFAULT_BOOT_TIME_PS",
     "DEFAULT_EDS",
     "STATUSWORD",

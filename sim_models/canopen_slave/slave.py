@@ -38,6 +38,7 @@ from sim_models.canopen_slave.timers import LocalTimer, true_after_local
 from sim_models.sim_time import PS_PER_MS, PS_PER_S, PS_PER_US, Scheduler
 
 __all__ = [
+    "CONTROL_RESYNC_MODES",
     "DEFAULT_BOOT_TIME_PS",
     "DEFAULT_EDS",
     "CanopenSlave",
@@ -65,6 +66,10 @@ ABORT_WRITE_RO = 0x06010002
 ABORT_NOT_MAPPABLE = 0x06040041
 ABORT_PDO_LENGTH = 0x06040042
 ABORT_INVALID_VALUE = 0x06090030
+
+#: Re-alignment of the local control loop (``control_resync``): free-running from power-on,
+#: re-anchored at every K-th SYNC, or anchored once at the first SYNC and free-running after it.
+CONTROL_RESYNC_MODES = ("none", "sync", "first_sync")
 
 #: EMCY error codes.
 EMCY_LIFE_GUARD_HEARTBEAT = 0x8130
@@ -110,8 +115,8 @@ class ControlTick:
     (``value`` is the stale previous one, or None if none ever arrived).
     """
 
-    tick: int  #: index since the last (re)start of the tick grid
-    epoch: int  #: number of resync() calls before this tick
+    tick: int  #: index since power-on or the last resync() (a SYNC re-phase continues it)
+    epoch: int  #: number of re-alignments (resync() calls and SYNC re-phases) before it
     t_ps: int  #: true time
     t_local_ps: int  #: slave's local time
     value: Any  #: sampled set-point
@@ -138,9 +143,21 @@ class CanopenSlave(CanNode):
             caused by a frame).
         control_period_ps: period of the local control loop (local time); None = no loop.
         control_source: set-point the control loop samples: an RPDO number 1..4 (the raw
-            payload, on reception) or an ``(index, subindex)`` object (its decoded value,
-            whenever it is written by SDO, RPDO or :meth:`write`).
+            payload, on reception), ``("applied", n)`` (the raw payload of RPDO n when it is
+            written into the OD: for a synchronous RPDO at the SYNC after its reception, which
+            is what a CiA 301 drive works with) or an ``(index, subindex)`` object (its decoded
+            value, whenever it is written by SDO, RPDO or :meth:`write`).
         control_offset_ps: local time from power-on (or resync) to tick 0.
+        control_resync: re-alignment of the tick grid on the SYNC (see
+            :data:`CONTROL_RESYNC_MODES`): ``"none"`` free-running from power-on; ``"sync"``
+            every ``control_resync_k``-th SYNC consumed (the first one included) re-anchors the
+            grid at its reception + ``control_phase_ps``; ``"first_sync"`` only the first SYNC
+            does (a drive that locks once and then runs on its own crystal). The tick index
+            continues through a re-phase (``epoch`` + 1); a re-phase is logged in
+            ``rephase_log``.
+        control_resync_k: K of ``"sync"``.
+        control_phase_ps: local time from the SYNC's reception to the re-anchored tick,
+            0 <= phase < control_period_ps.
         pdo_length_emcy: send EMCY 0x8210 / 0x8220 when an RPDO length error starts.
         guarding_with_heartbeat: answer node-guarding RTRs even while 1017h != 0 (CiA 301
             says heartbeat replaces guarding, so the default is False).
@@ -152,11 +169,23 @@ class CanopenSlave(CanNode):
                  name: str | None = None, boot_time_ps: int = DEFAULT_BOOT_TIME_PS,
                  reset_time_ps: int | None = None, response_delay_ps: int = 0,
                  control_period_ps: int | None = None,
-                 control_source: int | tuple[int, int] = 1, control_offset_ps: int = 0,
+                 control_source: int | tuple[int, int] | tuple[str, int] = 1,
+                 control_offset_ps: int = 0, control_resync: str = "none",
+                 control_resync_k: int = 1, control_phase_ps: int = 0,
                  pdo_length_emcy: bool = True, guarding_with_heartbeat: bool = False,
                  powered: bool = True) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node_id {node_id} out of range 1..127")
+        if control_resync not in CONTROL_RESYNC_MODES:
+            raise ValueError(f"control_resync must be one of {CONTROL_RESYNC_MODES}, "
+                             f"got {control_resync!r}")
+        if control_resync_k < 1:
+            raise ValueError(f"control_resync_k must be >= 1, got {control_resync_k}")
+        if control_resync != "none":
+            if not control_period_ps:
+                raise ValueError("control_resync needs a control loop (control_period_ps)")
+            if not 0 <= control_phase_ps < control_period_ps:
+                raise ValueError("control_phase_ps must lie in [0, control_period_ps)")
         super().__init__(name or f"slave{node_id}", clock)
         self.sched = sched
         self.node_id = node_id
@@ -208,6 +237,9 @@ class CanopenSlave(CanNode):
         self.control_log: list[ControlTick] = []
         #: (t_ps, t_local_ps) every resync() call
         self.resync_log: list[tuple[int, int]] = []
+        #: (t_ps, t_local_ps, cause) every SYNC re-phase of the control loop ("sync" /
+        #: "first_sync"; t = the SYNC's reception, the re-anchored tick is phase later)
+        self.rephase_log: list[tuple[int, int, str]] = []
         #: (t_ps, DriveState) CiA 402 state changes
         self.drive_log: list[tuple[int, DriveState]] = []
 
@@ -242,8 +274,14 @@ class CanopenSlave(CanNode):
         self.control_period_ps = control_period_ps
         self.control_source = control_source
         self.control_offset_ps = int(control_offset_ps)
+        self.control_resync = control_resync
+        self.control_resync_k = int(control_resync_k)
+        self.control_phase_ps = int(control_phase_ps)
         self._control_timer = LocalTimer(sched, self.clock, self._control_tick)
         self._control_epoch = 0
+        self._tick_base = 0  # tick index of the current timer run's expiry 0
+        self._last_tick: tuple[int, int] | None = None  # (tick index, local ps) of the last
+        self._control_syncs = 0  # SYNCs consumed since the loop (re)started
         self._sp_value: Any = None
         self._sp_t: int | None = None
         self._sp_arrivals = 0
@@ -375,10 +413,13 @@ class CanopenSlave(CanNode):
                 self._store(dst, 0, self.read_raw(src), "app")
 
     def resync(self) -> None:
-        """Zero the control-loop phase: tick 0 of a new grid happens now (tick index reset)."""
+        """Zero the control-loop phase: tick 0 of a new grid happens now (tick index reset).
+
+        The manual hard restart; the SYNC re-phase (``control_resync``) keeps the index."""
         self.resync_log.append((self.sched.now_ps, self.clock.local_ps(self.sched.now_ps)))
         self._control_epoch += 1
         if self._powered and self.control_period_ps:
+            self._tick_base = 0
             self._control_timer.start(self.control_period_ps, 0)
 
     def tpdo_log(self, pdo: int) -> list[tuple[int, bytes]]:
@@ -792,6 +833,7 @@ class CanopenSlave(CanNode):
                     rt.pending = None
                     self._apply_rpdo(n, payload)
             self.drive_update()
+        self._control_on_sync()
         for fn in list(self.sync_listeners):
             fn(self, t, counter)
 
@@ -965,6 +1007,8 @@ class CanopenSlave(CanNode):
     def _apply_rpdo(self, n: int, payload: bytes) -> None:
         self._rpdo[n].applied += 1
         self.rpdo_applied.append((self.sched.now_ps, n + 1, payload))
+        if self.control_source == ("applied", n + 1):
+            self._setpoint_arrived(payload)
         parts = P.unpack_pdo(self._rpdo_mapping(n), payload,
                              lambda i, s: len(self._var(i, s)) // 8)
         for index, subindex, raw in parts:
@@ -1003,8 +1047,38 @@ class CanopenSlave(CanNode):
 
     def _restart_control_loop(self) -> None:
         self._sp_value, self._sp_t, self._sp_arrivals = None, None, 0
+        self._tick_base = 0
+        self._last_tick = None
+        self._control_syncs = 0
         if self.control_period_ps:
             self._control_timer.start(self.control_period_ps, self.control_offset_ps)
+
+    def _control_on_sync(self) -> None:
+        """SYNC re-phase of the control loop (after the synchronous RPDOs were applied).
+
+        Grid point g = reception + phase (local time). If the last tick lies less than half a
+        period before g, this cycle has been sampled already (a fast clock) and the next tick
+        is at g + period; otherwise the pending tick is moved to g (earlier for a slow clock,
+        later for a fast one). The tick index continues: the first tick of the new grid gets
+        the index after the last tick's."""
+        if not (self._powered and self.control_period_ps) or self.control_resync == "none":
+            return
+        self._control_syncs += 1
+        if self.control_resync == "first_sync":
+            if self._control_syncs != 1:
+                return
+        elif (self._control_syncs - 1) % self.control_resync_k:
+            return
+        now = self.sched.now_ps
+        now_local = self.clock.local_ps(now)
+        period = self.control_period_ps
+        first = self.control_phase_ps
+        if self._last_tick is not None and now_local + first - self._last_tick[1] < period // 2:
+            first += period
+        self._tick_base = 0 if self._last_tick is None else self._last_tick[0] + 1
+        self._control_epoch += 1
+        self.rephase_log.append((now, now_local, self.control_resync))
+        self._control_timer.start(period, first)
 
     def _setpoint_arrived(self, value: Any) -> None:
         self._sp_value = value
@@ -1016,8 +1090,11 @@ class CanopenSlave(CanNode):
         self._sp_arrivals = 0
         status = "new" if arrivals == 1 else "overwritten" if arrivals > 1 else "missing"
         t = self.sched.now_ps
-        tick = ControlTick(k, self._control_epoch, t, self.clock.local_ps(t), self._sp_value,
+        t_local = self.clock.local_ps(t)
+        index = self._tick_base + k
+        tick = ControlTick(index, self._control_epoch, t, t_local, self._sp_value,
                            self._sp_t, status, arrivals)
+        self._last_tick = (index, t_local)
         self.control_log.append(tick)
         for fn in list(self.control_listeners):
             fn(self, tick)
