@@ -30,6 +30,8 @@ from cocotb.triggers import ClockCycles, FallingEdge, ReadOnly, RisingEdge
 from sim_models.can_bus import worst_case_bits
 from sim_models.canopen_slave.network import make_message
 from sim_models.omni import codec as oc
+from sim_models.omni.master_model import broadcast_dlc, check_feasibility
+from sim_models.sim_time import PS_PER_US
 from tb.tblib import regmap as R
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.frame_handover import hand_over_frame
@@ -681,6 +683,93 @@ async def run_feasibility(dut):
             assert int(dut.feasible_o.value) == int(ok), (n_axes, slots)
 
 
+def engine_layouts() -> list[tuple[int, bool, int]]:
+    """(fc, SENDER bit, N_AXES) for every layout plus the CFG_ERR neighbours: fc 001 with
+    sender N 0..8, without N 1..9, fc 100 N 1..5 (SENDER set on odd N: the engine ignores it
+    for fc 100)."""
+    out = [(oc.FC_BCAST_8X1, True, n) for n in range(0, 9)]
+    out += [(oc.FC_BCAST_8X1, False, n) for n in range(1, 10)]
+    out += [(oc.FC_BCAST_4X2, n % 2 == 1, n) for n in range(1, 6)]
+    return out
+
+
+def python_feasibility(rate: int, fc: int, snd: bool, n_axes: int, sync: bool,
+                       fb_dlcs: list[int], period_us: int):
+    """The Python reference check for an engine configuration; None where the engine must
+    report CFG_ERR (no broadcast layout for N_AXES)."""
+    try:
+        dlc = broadcast_dlc(n_axes, fc, snd)
+    except ValueError:
+        return None
+    return check_feasibility(rate, dlc, period_us * PS_PER_US, sync=sync, feedback_dlcs=fb_dlcs)
+
+
+@cocotb.test(timeout_time=60, timeout_unit="ms")
+async def run_feasibility_crosscheck(dut):
+    """Purpose: the RTL feasibility check and the Python reference
+    (sim_models.omni.master_model.check_feasibility) are one rule.
+
+    Verifies: for every broadcast layout (fc 001 with / without sender byte, fc 100, N_AXES
+    including the CFG_ERR values), SYNC_MODE 0 / 1 and four node tables (none, the thesis'
+    4 x 6-byte feedback, random valid / invalid slots with DLC 0..15, 8 x DLC 8): OMNI_BUS_BITS
+    = Feasibility.bits; at the smallest period Python accepts (bits * t_bit rounded up to a
+    whole us), one us less, one us more, 1 ms and a random period: INFEASIBLE and feasible_o =
+    not Feasibility.ok, within 2 * N_SLOTS + 8 cycles of the change (docs/omni_engine.md);
+    CFG_ERR configurations are infeasible at any period.
+    """
+    tb = TB(dut)
+    await tb.start()
+    rate, n_slots = tb.bitrate, tb.n_slots
+    settle = 2 * n_slots + 8
+    fcs = list(FB_FC.values())
+    rand_table = [(random.randrange(1, 256), random.choice(fcs), random.randrange(16),
+                   random.random() < 0.6) for _ in range(n_slots)]
+    tables = [[], [(n, FB_FC[n], 6, True) for n in SLAVES], rand_table,
+              [(SLAVES[i % 4], FB_FC[SLAVES[i % 4]], 8, True) for i in range(n_slots)]]
+    checked = boundary = 0
+    for table in tables:
+        for i in range(n_slots):
+            node, fc, dlc, valid = table[i] if i < len(table) else (0, 0, 0, False)
+            await tb.slot_cfg(i, node, fc, dlc, valid)
+        fb = [dlc for _, _, dlc, valid in table if valid]
+        for fc, snd, n_axes in engine_layouts():
+            for sync in (False, True):
+                await tb.configure(n_axes=n_axes, bc4x2=fc == oc.FC_BCAST_4X2, sender=snd,
+                                   sync_mode=sync)
+                ref = python_feasibility(rate, fc, snd, n_axes, sync, fb, 1000)
+                if ref is None:
+                    periods = [1000, 10**6]
+                else:
+                    limit_us = -(-ref.busy_ps // PS_PER_US)
+                    periods = [limit_us - 1, limit_us, limit_us + 1, 1000,
+                               random.randrange(1, 2 * limit_us)]
+                for period in periods:
+                    await FallingEdge(dut.clk_i)
+                    dut.period_us_i.value = period
+                    await tb.idle(settle)
+                    exp = python_feasibility(rate, fc, snd, n_axes, sync, fb, period)
+                    ok = exp is not None and exp.ok
+                    where = (f"fc {fc:03b} sender {snd} N {n_axes} sync {sync} fb {fb} "
+                             f"period {period} us: {exp.reason if exp else 'CFG_ERR'}")
+                    assert int(dut.feasible_o.value) == int(ok), where
+                    assert await tb.field("OMNI_STATUS", "INFEASIBLE") == int(not ok), where
+                    assert await tb.field("OMNI_STATUS", "CFG_ERR") == int(exp is None), where
+                    if exp is not None:
+                        assert await tb.field("OMNI_BUS_BITS", "BITS") == exp.bits, where
+                        # exact boundary: bits * t_bit <= T_s
+                        assert exp.ok == (exp.bits * 10**6 <= period * rate), where
+                    checked += 1
+                if ref is not None:
+                    # both sides of the boundary are among the periods checked
+                    assert python_feasibility(rate, fc, snd, n_axes, sync, fb,
+                                              limit_us).ok
+                    assert not python_feasibility(rate, fc, snd, n_axes, sync, fb,
+                                                  limit_us - 1).ok
+                    boundary += 1
+    dut._log.info("feasibility cross-check at %d bit/s: %d (configuration, period) cells, "
+                  "%d boundaries", rate, checked, boundary)
+
+
 @cocotb.test(timeout_time=10, timeout_unit="ms")
 async def run_disabled_idle(dut):
     """Purpose: enable_i = 0: no frames, received frames only answered, counted nowhere.
@@ -740,7 +829,7 @@ async def run_window_checker_can_fail(dut):
 
 @pytest.mark.parametrize("bitrate", [1_000_000, 125_000])
 def test_omni_engine(request, bitrate):
-    tests = None if bitrate == 1_000_000 else ["run_feasibility"]
+    tests = None if bitrate == 1_000_000 else ["run_feasibility", "run_feasibility_crosscheck"]
     run_cocotb(toplevel="omni_engine", module="tb.test_omni_engine", name=request.node.name,
                parameters={"N_SLOTS": 8, "BITRATE_BPS": bitrate, "MASTER_ID_DEFAULT": 2},
                testcase=tests)

@@ -4,7 +4,7 @@
 * :mod:`~sim_models.omni.slave`: :class:`OmniSlave`, a drifting sampled-data slave with the
   thesis' re-phase and the project's Omni SYNC re-phase;
 * :mod:`~sim_models.omni.master_model`: :class:`OmniMaster`, the transaction-level reference
-  master, and the feasibility check (AT-8);
+  master, and the feasibility check (AT-8, the RTL engine's rule);
 * :mod:`~sim_models.omni.experiments`: the acceptance experiments AT-5..AT-10, AT-13 and the
   model formulas they are checked against.
 
@@ -15,6 +15,7 @@ from sim_models.omni.master_model import (
     Feasibility,
     InfeasibleConfiguration,
     OmniMaster,
+    broadcast_dlc,
     check_feasibility,
 )
 from sim_models.omni.slave import OmniSlave, OmniTick, clock_for_period_error, setpoint_value
@@ -25,6 +26,7 @@ __all__ = [
     "OmniMaster",
     "OmniSlave",
     "OmniTick",
+    "broadcast_dlc",
     "check_feasibility",
     "clock_for_period_error",
     "setpoint_value",

@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from fractions import Fraction
 from typing import Any
 
 from sim_models.can_bus import CanBus, frame_length_bits, worst_case_bits
 from sim_models.omni import codec as oc
 from sim_models.omni.master_model import OmniMaster, check_feasibility
-from sim_models.omni.slave import OmniSlave, clock_for_period_error
+from sim_models.omni.slave import FEEDBACK_DLC, OmniSlave, clock_for_period_error
 from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
 
 __all__ = [
@@ -56,6 +57,9 @@ RATES = (100_000, 125_000, 250_000, 500_000, 1_000_000)
 THESIS_RHO_PPM = 3618.0
 #: the thesis' measured slave post-processing time (Table 2-1)
 THESIS_T_POST_PS = 88_800_000
+#: margin left before the next command when the sweeps choose K (:func:`default_k`): 10 % of
+#: T_s, the digest's 0.1 ms at 1 ms (AT-10)
+K_MARGIN_FRACTION = Fraction(1, 10)
 
 
 # ==========================================================================================
@@ -288,10 +292,11 @@ def stuff_jitter_ps(bitrate_bps: int, dlc: int) -> int:
 def default_k(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float,
               sample_phase_ps: int = 0, t_post_ps: int = 0) -> int:
     """K of the sweeps: :func:`k_max` with the worst-case command latency, the sample phase
-    and a 10 % margin."""
+    and a margin of :data:`K_MARGIN_FRACTION` of T_s (a choice of K, not the feasibility
+    rule, which has no margin)."""
     feas = check_feasibility(bitrate_bps, dlc, period_ps)
     d = feas.cmd_wc_ps + t_post_ps + sample_phase_ps
-    return k_max(period_ps, d, feas.margin_ps, rho_ppm)
+    return k_max(period_ps, d, int(period_ps * K_MARGIN_FRACTION), rho_ppm)
 
 
 def sweep(period_ps: int, *, rates: tuple[int, ...] = RATES,
@@ -341,7 +346,8 @@ def at9_four_slaves(n_cycles: int = 10_000, *, sync: bool = True, k: int = 100,
     sched = Scheduler()
     bus = CanBus(sched, bitrate_bps)
     master = OmniMaster(sched, bitrate_bps=bitrate_bps, period_ps=period_ps, n_axes=4,
-                        sync_every=k if sync else 0, n_cycles=n_cycles)
+                        sync_every=k if sync else 0, n_cycles=n_cycles,
+                        feedback_dlcs=(FEEDBACK_DLC,) * len(rhos) if feedback else ())
     bus.attach(master)
     slaves = []
     for node, rho in zip(oc.THESIS_SLAVE_IDS, rhos):

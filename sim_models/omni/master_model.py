@@ -20,88 +20,134 @@ cycle (digest §3.4 "Platform MASTER", §6) on its own clock:
   ``[02|00][1|0]`` and forwards a controller setting (type 0x0C) to every node of
   ``query_nodes`` as type 0x01 with a 2-byte value (Figs 4-18..4-20).
 
-Before anything is sent the configuration is checked with :func:`check_feasibility` (AT-8):
-one worst-case command frame (plus the SYNC in option ii) and the margin must fit in T_s. An
-infeasible configuration raises :class:`InfeasibleConfiguration` unless ``allow_infeasible``
-(used by the experiments that show what happens then).
+Before anything is sent the configuration is checked with :func:`check_feasibility` (AT-8),
+the same rule as the RTL engine (``rtl/omni_engine.vhd``, OMNI_STATUS.INFEASIBLE /
+OMNI_BUS_BITS): the worst-case bits of one cycle, broadcast + Omni SYNC (option ii) + one
+frame per feedback slot, must fit in T_s. An infeasible configuration raises
+:class:`InfeasibleConfiguration` unless ``allow_infeasible`` (used by the experiments that
+show what happens then).
 """
 
 from __future__ import annotations
 
 import bisect
 import itertools
+from collections.abc import Iterable
 from dataclasses import dataclass
-from fractions import Fraction
 
 import can
 
-from sim_models.can_bus import (
-    CanNode,
-    NodeClock,
-    arbitration_bits,
-    frame_length_bits,
-    worst_case_bits,
-)
+from sim_models.can_bus import CanNode, NodeClock, arbitration_bits, worst_case_bits
 from sim_models.canopen_slave.timers import LocalTimer
 from sim_models.omni import codec as oc
 from sim_models.omni.slave import setpoint_value
 from sim_models.sim_time import PS_PER_S, Scheduler
 
 __all__ = [
-    "DEFAULT_MARGIN_FRACTION",
     "Feasibility",
     "InfeasibleConfiguration",
     "OmniMaster",
+    "broadcast_dlc",
     "check_feasibility",
+    "wc_bits",
 ]
-
-#: default margin of the feasibility check: 10 % of T_s (the digest's 0.1 ms at 1 ms, AT-10)
-DEFAULT_MARGIN_FRACTION = Fraction(1, 10)
 
 
 class InfeasibleConfiguration(ValueError):
     """The periodic traffic does not fit in the sample period."""
 
 
+def wc_bits(dlc: int) -> int:
+    """Worst-case bits of a standard data frame with DLC ``dlc``, intermission included:
+    :func:`~sim_models.can_bus.worst_case_bits` = 55 + 10·n; DLC 9..15 carry 8 bytes (ISO
+    11898-1) and count as 8, as in the RTL's ``wc_of``."""
+    if not 0 <= dlc <= 15:
+        raise ValueError(f"DLC {dlc} out of range 0..15")
+    return worst_case_bits(min(dlc, 8))
+
+
+def broadcast_dlc(n_axes: int, fc: int = oc.FC_BCAST_8X1, with_sender: bool = True) -> int:
+    """DLC of the broadcast the RTL engine sends for OMNI_CFG (N_AXES, BCAST_4X2, SENDER):
+    fc 001: ``n_axes`` (+ 1 with the sender byte), 1..8 bytes; fc 100: ``2·n_axes``, the
+    SENDER bit is ignored (no room, A1). Raises ``ValueError`` where the engine sets CFG_ERR
+    (and OMNI_STATUS.INFEASIBLE): ``n_axes`` 0, more than 8 bytes, more than 4 axes of fc 100."""
+    if fc == oc.FC_BCAST_4X2:
+        with_sender = False
+    offset, width, max_slots = oc.slot_layout(fc, with_sender)
+    if not 1 <= n_axes <= max_slots:
+        raise ValueError(f"{n_axes} axes: fc {fc:03b} {'with' if offset else 'without'} "
+                         f"sender holds 1..{max_slots} (CFG_ERR)")
+    return offset + width * n_axes
+
+
 @dataclass(frozen=True)
 class Feasibility:
-    """Result of :func:`check_feasibility`; all times in ps."""
+    """Result of :func:`check_feasibility`: bit counts (OMNI_BUS_BITS = ``bits``) and times in
+    ps (worst-case durations rounded up to whole ps)."""
 
     ok: bool
     reason: str
-    cmd_wc_ps: int  #: worst-case command frame, SOF to end of intermission
-    sync_ps: int  #: Omni SYNC frame (fixed length) or 0
+    bits: int  #: worst-case bits of one cycle (the RTL's OMNI_BUS_BITS)
+    cmd_bits: int  #: broadcast (command) frame
+    sync_bits: int  #: Omni SYNC (wc of DLC 0 = 55) or 0
+    feedback_bits: int  #: sum over the feedback slots
+    bitrate_bps: int
     margin_ps: int
     period_ps: int
 
+    def _dur(self, bits: int) -> int:
+        return -(-bits * PS_PER_S // self.bitrate_bps)
+
+    @property
+    def cmd_wc_ps(self) -> int:
+        return self._dur(self.cmd_bits)
+
+    @property
+    def sync_ps(self) -> int:
+        return self._dur(self.sync_bits)
+
     @property
     def busy_ps(self) -> int:
-        return self.cmd_wc_ps + self.sync_ps
+        """``bits · τ_bit``: the worst-case bus time of one cycle."""
+        return self._dur(self.bits)
+
+    @property
+    def min_period_ps(self) -> int:
+        """Smallest period that passes: ``bits · τ_bit + margin``."""
+        return self.busy_ps + self.margin_ps
 
 
 def check_feasibility(bitrate_bps: int, dlc: int, period_ps: int, *, sync: bool = False,
-                      margin_ps: int | None = None) -> Feasibility:
-    """Does one command frame of ``dlc`` bytes (worst-case stuffing, standard id, including
-    the 3-bit intermission), plus the Omni SYNC frame when ``sync`` (option ii), plus
-    ``margin_ps`` (default 10 % of T_s) fit in ``period_ps``? Returns the reason either way."""
-    if margin_ps is None:
-        margin_ps = int(period_ps * DEFAULT_MARGIN_FRACTION)
+                      feedback_dlcs: Iterable[int] = (), margin_ps: int = 0) -> Feasibility:
+    """The RTL engine's feasibility rule (docs/omni_engine.md "Feasibility"):
 
-    def dur(bits: int) -> int:
-        return -(-bits * PS_PER_S // bitrate_bps)  # ceil
-
-    cmd = dur(worst_case_bits(dlc))
-    sync_ps = dur(frame_length_bits(oc.omni_sync_frame())) if sync else 0
-    total = cmd + sync_ps + margin_ps
-    parts = f"command {worst_case_bits(dlc)} bits = {cmd / 1e6:.1f} us"
+    ``bits = wc(dlc) [+ wc(0) for the Omni SYNC when sync] + Σ wc(d) for d in feedback_dlcs``
+    with :func:`wc_bits` (worst-case stuffing, standard id, intermission included), and the
+    cycle is feasible iff ``bits · τ_bit + margin_ps <= period_ps`` (exact integer arithmetic;
+    ``τ_bit = 1 / bitrate_bps``). ``dlc`` is the broadcast's DLC as on the wire (sender byte
+    included; :func:`broadcast_dlc`), ``feedback_dlcs`` the DLCs of the valid feedback slots.
+    The RTL has no margin (``margin_ps`` = 0, the default); experiments may add one. The SYNC
+    counts in every cycle (the worst case), whatever K is; node queries and replies are not
+    counted (as in the RTL). Returns the reason either way."""
+    if margin_ps < 0:
+        raise ValueError("margin_ps must be >= 0")
+    fb = [wc_bits(d) for d in feedback_dlcs]
+    cmd_bits = wc_bits(dlc)
+    sync_bits = wc_bits(0) if sync else 0
+    bits = cmd_bits + sync_bits + sum(fb)
+    ok = bits * PS_PER_S + margin_ps * bitrate_bps <= period_ps * bitrate_bps
+    parts = f"command DLC {dlc} {cmd_bits}"
     if sync:
-        parts += f" + SYNC {sync_ps / 1e6:.1f} us"
-    parts += f" + margin {margin_ps / 1e6:.1f} us = {total / 1e6:.1f} us"
-    if total > period_ps:
-        return Feasibility(False, f"infeasible at {bitrate_bps} bit/s, DLC {dlc}: {parts} > "
-                           f"T_s {period_ps / 1e6:.1f} us", cmd, sync_ps, margin_ps, period_ps)
-    return Feasibility(True, f"feasible: {parts} <= T_s {period_ps / 1e6:.1f} us", cmd,
-                       sync_ps, margin_ps, period_ps)
+        parts += f" + SYNC {sync_bits}"
+    if fb:
+        parts += f" + feedback {'+'.join(map(str, fb))}"
+    parts += f" = {bits} bits = {bits * PS_PER_S / bitrate_bps / 1e6:.1f} us"
+    if margin_ps:
+        parts += f" + margin {margin_ps / 1e6:.1f} us"
+    verdict = (f"feasible at {bitrate_bps} bit/s: {parts} <= T_s" if ok else
+               f"infeasible at {bitrate_bps} bit/s, DLC {dlc}: {parts} > T_s")
+    return Feasibility(ok, f"{verdict} {period_ps / 1e6:.1f} us", bits, cmd_bits, sync_bits,
+                       sum(fb), int(bitrate_bps), int(margin_ps), int(period_ps))
 
 
 class OmniMaster(CanNode):
@@ -115,7 +161,9 @@ class OmniMaster(CanNode):
         sync_every: K of option ii (0 = no Omni SYNC).
         query_every: node query every M cycles (0 = never); ``query_nodes`` must answer.
         n_cycles: stop after this many cycles (None = run forever).
-        margin_ps: feasibility margin (default 10 % of T_s).
+        feedback_dlcs: DLCs of the feedback frames one cycle carries (the RTL's valid node
+            table slots), counted by :func:`check_feasibility`.
+        margin_ps: feasibility margin (default 0, as the RTL).
         allow_infeasible: run even if :func:`check_feasibility` fails (experiments only).
     """
 
@@ -126,7 +174,8 @@ class OmniMaster(CanNode):
                  sync_every: int = 0, query_every: int = 0,
                  query_nodes: tuple[int, ...] = (), stop_on_missing: bool = True,
                  first_cycle_delay_ps: int | None = None, n_cycles: int | None = None,
-                 margin_ps: int | None = None, allow_infeasible: bool = False) -> None:
+                 feedback_dlcs: tuple[int, ...] = (), margin_ps: int = 0,
+                 allow_infeasible: bool = False) -> None:
         super().__init__(name, clock)
         self.sched = sched
         self.node_id = node_id
@@ -151,8 +200,11 @@ class OmniMaster(CanNode):
         self.first_cycle_delay_ps = (self.period_ps if first_cycle_delay_ps is None
                                      else int(first_cycle_delay_ps))
         self.n_cycles = n_cycles
+        self.feedback_dlcs = tuple(feedback_dlcs)
         self.feasibility = check_feasibility(self.bitrate_bps, dlc, self.period_ps,
-                                             sync=self.sync_every > 0, margin_ps=margin_ps)
+                                             sync=self.sync_every > 0,
+                                             feedback_dlcs=self.feedback_dlcs,
+                                             margin_ps=margin_ps)
         if not self.feasibility.ok and not allow_infeasible:
             raise InfeasibleConfiguration(self.feasibility.reason)
 

@@ -56,6 +56,7 @@ from sim_models.omni import codec as oc
 from sim_models.sim_time import Scheduler
 
 __all__ = [
+    "FEEDBACK_DLC",
     "RESYNC_MODES",
     "OmniSlave",
     "OmniTick",
@@ -64,6 +65,8 @@ __all__ = [
 ]
 
 RESYNC_MODES = ("none", "thesis", "sync_frame")
+#: DLC of the feedback frame: ``[own id][type 0x00][echo int16][sample index uint16]``
+FEEDBACK_DLC = 6
 
 
 def setpoint_value(cycle: int, axis: int, width: int = 1) -> int:

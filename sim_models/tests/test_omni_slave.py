@@ -1,5 +1,6 @@
 """OmniSlave behaviours: NMT, node query, parameters, broadcast slot, sample loop, re-phase
-modes, feedback, T_post; OmniMaster: feasibility refusal, node monitoring."""
+modes, feedback, T_post; OmniMaster: feasibility rule (the RTL's) and refusal, node
+monitoring."""
 
 from __future__ import annotations
 
@@ -11,11 +12,14 @@ from sim_models.omni import (
     InfeasibleConfiguration,
     OmniMaster,
     OmniSlave,
+    broadcast_dlc,
     check_feasibility,
     clock_for_period_error,
     setpoint_value,
 )
 from sim_models.omni import codec as oc
+from sim_models.omni.master_model import wc_bits
+from sim_models.omni.slave import FEEDBACK_DLC
 from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
 
 RATE = 1_000_000
@@ -108,6 +112,7 @@ def test_feedback_frame_layout() -> None:
     # [sender][type 00][echo int16][sample index uint16]
     assert fb == {0x202: bytes([4, 0, 0, 5, 0, 0]), 0x302: bytes([8, 0, 0, 6, 0, 0]),
                   0x502: bytes([0x10, 0, 0, 7, 0, 0]), 0x602: bytes([0x20, 0, 0xFF, 0xF8, 0, 0])}
+    assert {len(v) for v in fb.values()} == {FEEDBACK_DLC}
 
 
 def test_clock_for_period_error() -> None:
@@ -207,6 +212,43 @@ def test_master_refuses_infeasible_configuration() -> None:
     assert check_feasibility(1_000_000, 8, T_S).ok
     OmniMaster(Scheduler(), bitrate_bps=125_000, period_ps=T_S, n_axes=7,
                allow_infeasible=True)
+    # the RTL rule counts the feedback slots: the trace's DLC 5 broadcast fits 1 ms at
+    # 125 kbit/s (105 bits = 840 us), not with one 6-byte feedback frame (+115 bits)
+    OmniMaster(Scheduler(), bitrate_bps=125_000, period_ps=T_S, n_axes=4)
+    with pytest.raises(InfeasibleConfiguration, match="feedback 115 = 220 bits"):
+        OmniMaster(Scheduler(), bitrate_bps=125_000, period_ps=T_S, n_axes=4,
+                   feedback_dlcs=(FEEDBACK_DLC,))
+
+
+def test_feasibility_rule_is_the_rtl_rule() -> None:
+    """bits = wc(broadcast DLC) [+ wc(0) SYNC] + sum wc(feedback DLC); feasible iff
+    bits * t_bit + margin <= T_s (docs/omni_engine.md "Feasibility")."""
+    assert [wc_bits(n) for n in range(16)] == [55 + 10 * n for n in range(9)] + [135] * 7
+    with pytest.raises(ValueError):
+        wc_bits(16)
+    f = check_feasibility(1_000_000, 5, 620 * PS_PER_US, sync=True, feedback_dlcs=(6,) * 4)
+    assert (f.bits, f.cmd_bits, f.sync_bits, f.feedback_bits) == (620, 105, 55, 460)
+    assert f.ok and f.busy_ps == f.min_period_ps == 620 * PS_PER_US
+    assert not check_feasibility(1_000_000, 5, 620 * PS_PER_US - 1, sync=True,
+                                 feedback_dlcs=(6,) * 4).ok
+    # the margin is an option (experiments), 0 by default as in the RTL
+    assert not check_feasibility(1_000_000, 5, 620 * PS_PER_US, sync=True,
+                                 feedback_dlcs=(6,) * 4, margin_ps=1).ok
+    m = check_feasibility(1_000_000, 5, 720 * PS_PER_US, sync=True, feedback_dlcs=(6,) * 4,
+                          margin_ps=100 * PS_PER_US)
+    assert m.ok and m.min_period_ps == 720 * PS_PER_US
+    # the Omni SYNC counts wc(0) = 55 bits (its real length is fixed and shorter)
+    assert frame_length_bits(oc.omni_sync_frame()) <= check_feasibility(
+        RATE, 0, T_S, sync=True).sync_bits == 55
+    # exact at a rate that is not a whole number of ns per bit: 135 bits at 3 Mbit/s = 45 us
+    assert check_feasibility(3_000_000, 8, 45 * PS_PER_US).ok
+    assert not check_feasibility(3_000_000, 8, 45 * PS_PER_US - 1).ok
+    # broadcast DLC of the engine's OMNI_CFG layouts (sender byte included)
+    assert broadcast_dlc(4) == 5 and broadcast_dlc(8, with_sender=False) == 8
+    assert broadcast_dlc(4, oc.FC_BCAST_4X2, with_sender=True) == 8  # SENDER ignored
+    for bad in ((0,), (8,), (9, oc.FC_BCAST_8X1, False), (5, oc.FC_BCAST_4X2)):
+        with pytest.raises(ValueError):
+            broadcast_dlc(*bad)
 
 
 def test_master_node_monitoring_detects_missing_slave() -> None:
