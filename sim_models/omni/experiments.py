@@ -43,8 +43,12 @@ __all__ = [
     "at9_four_slaves",
     "at10_stress",
     "at13_sync_step",
+    "check_at5",
+    "check_at6",
+    "default_k",
     "delivery_latency_ps",
     "evaluate_slave",
+    "inter_slave_skew_ps",
     "k_max",
     "n_drift_model",
     "run_two_node",
@@ -111,27 +115,56 @@ class SlaveResult:
     nominal_latency_ps: int = 0  #: D_i of the skew definition
     skew_max_ps: int = 0  #: max_n |s_n - (m_n + D_i)|
     rephases: int = 0
+    dropout_ticks: list[int] = field(default_factory=list, repr=False)  #: every dropout n
+    skew_max_tick: int | None = None  #: the sample n of skew_max_ps (first one)
 
     def summary(self) -> dict[str, Any]:
         d = asdict(self)
         d.pop("offsets_ps")
+        d.pop("dropout_ticks")
         return d
 
 
-def evaluate_slave(slave: OmniSlave, master: OmniMaster, n_cycles: int, rho_ppm: float,
+def evaluate_slave(slave: Any, master: Any, n_cycles: int, rho_ppm: float,
                    nominal_latency_ps: int = 0) -> SlaveResult:
     """Dropout (Eq 2-2, 2-3) over the samples whose command cycle was sent, and the offsets
-    ``s_n - m_n`` of the samples whose own cycle exists."""
+    ``s_n - m_n`` of the samples whose own cycle exists.
+
+    ``slave`` needs ``name``, ``control_log`` (:class:`~sim_models.omni.slave.OmniTick`),
+    ``rephase_log``, ``value_fn`` and ``axis``; ``master`` needs ``cycle_log`` ((c, m_c)
+    pairs, e.g. the RTL's cycle instants). A sample is a dropout when the value it took is
+    not ``value_fn(expected_cycle, axis)``: decided here from the logged value, not taken
+    from the slave's own flag, so a log is checked independently of the slave's decision."""
     cycles = dict(master.cycle_log)
     counted = [t for t in slave.control_log
-               if t.dropout is not None and t.expected_cycle < n_cycles]
-    drops = [t for t in counted if t.dropout]
-    offsets = [t.t_ps - cycles[t.tick] for t in slave.control_log if t.tick in cycles]
+               if t.expected_cycle >= 0 and t.expected_cycle < n_cycles]
+    drops = [t.tick for t in counted
+             if t.value is None or t.value != slave.value_fn(t.expected_cycle, slave.axis)]
+    samples = [(t.tick, t.t_ps - cycles[t.tick]) for t in slave.control_log
+               if t.tick in cycles]
+    offsets = [o for _, o in samples]
     n = len(counted)
-    skew = max((abs(o - nominal_latency_ps) for o in offsets), default=0)
+    skew, skew_tick = 0, None
+    for tick, o in samples:
+        if skew_tick is None or abs(o - nominal_latency_ps) > skew:
+            skew, skew_tick = abs(o - nominal_latency_ps), tick
     return SlaveResult(slave.name, rho_ppm, n, len(drops), 100.0 * len(drops) / n if n else 0.0,
-                       n - len(drops), drops[0].tick if drops else None, offsets,
-                       nominal_latency_ps, skew, len(slave.rephase_log))
+                       n - len(drops), drops[0] if drops else None, offsets,
+                       nominal_latency_ps, skew, len(slave.rephase_log), drops, skew_tick)
+
+
+def inter_slave_skew_ps(control_logs: list[list[Any]], cycle_log: list[tuple[int, int]]
+                        ) -> dict[int, int]:
+    """Inter-slave sample skew per sample index n: ``max_i s_{i,n} - min_i s_{i,n}``, for
+    every n of the master's ``cycle_log`` that every slave sampled."""
+    cycles = dict(cycle_log)
+    by_tick: dict[int, list[int]] = {}
+    for log in control_logs:
+        for t in log:
+            if t.tick in cycles:
+                by_tick.setdefault(t.tick, []).append(t.t_ps)
+    return {n: max(v) - min(v) for n, v in sorted(by_tick.items())
+            if len(v) == len(control_logs)}
 
 
 # ==========================================================================================
@@ -172,14 +205,15 @@ class TwoNodeRun:
 def run_two_node(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float, n_cycles: int,
                  *, resync: str = "none", k: int = 10, sample_phase_ps: int = 0,
                  initial_offset_ps: int | None = None, t_post_ps: int = 0,
-                 allow_infeasible: bool = True, late_frames: dict[int, int] | None = None
-                 ) -> TwoNodeRun:
+                 allow_infeasible: bool = True, late_frames: dict[int, int] | None = None,
+                 drop_cycles: frozenset[int] | set[int] = frozenset()) -> TwoNodeRun:
     """Master (0 ppm, node 0x02) + one slave (node 0x04, axis 1, period error ``rho_ppm``).
 
     The command is an fc 001 broadcast of ``dlc`` bytes (sender byte + ``dlc - 1`` slots).
     ``initial_offset_ps`` places the slave's free-running sample 0 at ``m_0 + offset`` (it is
     ignored in thesis mode, where sample 0 is the first command). ``late_frames`` maps a cycle
-    index to an extra delay of that cycle's command (fault injection for the checkers)."""
+    index to an extra delay of that cycle's command, ``drop_cycles`` lists cycles whose
+    command is never sent (fault injection for the checkers)."""
     if dlc < 2:
         raise ValueError("the command needs a sender byte and at least one slot (DLC >= 2)")
     sched = Scheduler()
@@ -202,8 +236,8 @@ def run_two_node(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float, n_c
                       sample_phase_ps=sample_phase_ps, start_delay_ps=start_delay,
                       t_post_ps=t_post_ps)
     bus.attach(slave)
-    if late_frames:
-        _inject_late_commands(master, late_frames)
+    if late_frames or drop_cycles:
+        _inject_faults(master, late_frames or {}, frozenset(drop_cycles))
     master.start()
     sched.run_until(period_ps * (n_cycles + 3))
     sent = [(t, m) for t, m in master.tx_log if m.arbitration_id == master.command_frame(0)
@@ -216,15 +250,16 @@ def run_two_node(bitrate_bps: int, dlc: int, period_ps: int, rho_ppm: float, n_c
                       res.offsets_ps[0] if res.offsets_ps else None, master, slave, bus)
 
 
-def _inject_late_commands(master: OmniMaster, late: dict[int, int]) -> None:
-    """Delay the command of the given cycles by the given ps (checker self-test)."""
+def _inject_faults(master: OmniMaster, late: dict[int, int], dropped: frozenset[int]) -> None:
+    """Delay the command of the cycles in ``late`` by the given ps, do not send the command
+    of the cycles in ``dropped`` (the cycle instant is still logged; checker self-tests)."""
     original = master._on_cycle
 
     def patched(c: int) -> None:
-        if c in late and (master.n_cycles is None or c < master.n_cycles):
+        if (c in late or c in dropped) and (master.n_cycles is None or c < master.n_cycles):
             master.cycle_log.append((c, master.sched.now_ps))
-            frame = master.command_frame(c)
-            master.sched.call_later(late[c], master.queue_frame, frame)
+            if c in late:
+                master.sched.call_later(late[c], master.queue_frame, master.command_frame(c))
             return
         original(c)
 
@@ -236,11 +271,15 @@ def _inject_late_commands(master: OmniMaster, late: dict[int, int]) -> None:
 # ==========================================================================================
 
 
-def at5_drift_reproduction(n_cycles: int = 1000) -> dict[str, Any]:
-    """T_s 5 ms, ρ = +3618 ppm, t_dif(0) = 1.74 ms, 1 Mbit/s, 2-byte command, no sync."""
+def at5_drift_reproduction(n_cycles: int = 1000, *, rho_ppm: float = THESIS_RHO_PPM,
+                           t_dif0_ps: int = 1_740 * PS_PER_US) -> dict[str, Any]:
+    """T_s 5 ms, ρ = +3618 ppm, t_dif(0) = 1.74 ms, 1 Mbit/s, 2-byte command, no sync.
+
+    ``rho_ppm`` / ``t_dif0_ps`` are the slave's real drift and start offset (the thesis'
+    values by default); the model figures always use the thesis' ρ, so a different slave
+    makes :func:`check_at5` fail (its self-test)."""
     period = 5 * PS_PER_MS
-    run = run_two_node(1_000_000, 2, period, THESIS_RHO_PPM, n_cycles,
-                       initial_offset_ps=1_740 * PS_PER_US)
+    run = run_two_node(1_000_000, 2, period, rho_ppm, n_cycles, initial_offset_ps=t_dif0_ps)
     off = run.result.offsets_ps
     d_mean = (run.d_min_ps + run.d_max_ps) / 2
     model_onset = n_drift_model(off[0], THESIS_RHO_PPM, period, d_mean)
@@ -261,6 +300,40 @@ def at5_drift_reproduction(n_cycles: int = 1000) -> dict[str, Any]:
     }
 
 
+def check_at5(r: dict[str, Any]) -> list[str]:
+    """AT-5 pass criteria on an :func:`at5_drift_reproduction` result; returns the failures
+    (empty = pass):
+
+    * t_dif(0) = 1.74 ms; offset after 40 periods 2.46 ms ± 0.02 ms (thesis Figs 2-15/2-16);
+    * every offset on the model line ``t_dif(0) + n·ρ·T_s`` (ρ = +3618 ppm) within 2 ps;
+    * model onset in the digest's 180..191; measured onset and ``N_drift`` (Eq 2-3) within
+      ±1 of it; p within one sample of ``(N - N_drift,model) / N``."""
+    fails = []
+    if abs(r["t_dif0_ms"] - 1.74) > 1e-6:
+        fails.append(f"t_dif(0) = {r['t_dif0_ms']:.6f} ms, not 1.74 ms")
+    if abs(r["offset_after_40_ms"] - 2.46) > 0.02:
+        fails.append(f"offset after 40 periods {r['offset_after_40_ms']:.4f} ms, "
+                     "not 2.46 ± 0.02 ms")
+    off = r["offsets_ps"]
+    step = THESIS_RHO_PPM * 1e-6 * 5 * PS_PER_MS
+    off_line = [n for n in range(len(off)) if abs(off[n] - (off[0] + n * step)) > 2]
+    if off_line:
+        fails.append(f"offset off the model line t_dif(0) + n·ρ·T_s at samples {off_line[:5]}"
+                     f"{' ...' if len(off_line) > 5 else ''}")
+    if not 180 <= r["n_drift_model"] <= 191:
+        fails.append(f"model onset {r['n_drift_model']} outside 180..191")
+    if r["onset_measured"] is None or abs(r["onset_measured"] - r["n_drift_model"]) > 1:
+        fails.append(f"onset {r['onset_measured']} not within ±1 of the model "
+                     f"{r['n_drift_model']}")
+    if abs(r["n_drift_eq23"] - r["n_drift_model"]) > 1:
+        fails.append(f"N_drift (Eq 2-3) {r['n_drift_eq23']} not within ±1 of the model "
+                     f"{r['n_drift_model']}")
+    if abs(r["p_pct"] - r["p_model_pct"]) > 100.0 / r["n"] + 1e-9:
+        fails.append(f"p = {r['p_pct']:.3f} % not within one sample of the model "
+                     f"{r['p_model_pct']:.3f} %")
+    return fails
+
+
 # ==========================================================================================
 # AT-6 / AT-7 / AT-8: sync removes drift-induced loss; bit-rate x length sweeps
 # ==========================================================================================
@@ -268,19 +341,53 @@ def at5_drift_reproduction(n_cycles: int = 1000) -> dict[str, Any]:
 
 def at6_sync_removes_drift(dlc: int, n_cycles: int = 3000, k: int = 10,
                            bitrate_bps: int = 1_000_000, period_ps: int = 5 * PS_PER_MS,
-                           sample_phase_ps: int = 0) -> dict[str, Any]:
+                           sample_phase_ps: int = 0, *, rho_ppm: float = THESIS_RHO_PPM
+                           ) -> dict[str, Any]:
     """AT-5 plus the thesis re-phase every K samples; offset band model
-    ``[D_min, D_max + K·ρ·T_s + 1 τ_bit]``."""
-    run = run_two_node(bitrate_bps, dlc, period_ps, THESIS_RHO_PPM, n_cycles, resync="thesis",
+    ``[D_min, D_max + K·ρ·T_s + 1 τ_bit]`` with the thesis' ρ (``rho_ppm`` is the slave's
+    real drift, for the checker's self-test). Checked by :func:`check_at6`."""
+    run = run_two_node(bitrate_bps, dlc, period_ps, rho_ppm, n_cycles, resync="thesis",
                        k=k, sample_phase_ps=sample_phase_ps)
     tau = 10**12 // bitrate_bps
     lo = run.d_min_ps + sample_phase_ps
     hi = run.d_max_ps + sample_phase_ps + int(k * THESIS_RHO_PPM * 1e-6 * period_ps) + tau
     off = run.result.offsets_ps
-    return {"dlc": dlc, "p_pct": run.result.p_pct, "n": run.result.n,
-            "n_dropout": run.result.n_dropout, "offset_min_ps": min(off),
-            "offset_max_ps": max(off), "band_model_ps": (lo, hi),
+    return {"dlc": dlc, "k": k, "n_cycles": n_cycles, "p_pct": run.result.p_pct,
+            "n": run.result.n, "n_dropout": run.result.n_dropout, "offsets_ps": off,
+            "offset_min_ps": min(off), "offset_max_ps": max(off), "band_model_ps": (lo, hi),
+            "spread_ps": run.d_max_ps - run.d_min_ps,
             "first_k_max_ps": max(off[:k]), "last_k_max_ps": max(off[-k:]), "run": run}
+
+
+def check_at6(r: dict[str, Any]) -> list[str]:
+    """AT-6 pass criteria on an :func:`at6_sync_removes_drift` result (offsets recomputed
+    from ``offsets_ps``); returns the failures (empty = pass):
+
+    * dropout 0 % over at least N - 1 samples;
+    * every offset inside the band ``[D_min, D_max + K·ρ·T_s + τ_bit]``;
+    * no secular growth: the peak offset of every re-phase interval (samples jK .. jK+K-1)
+      lies within the command-latency spread ``D_max - D_min`` (stuff bits) of the first
+      interval's peak, and the last interval's peak is not above the first's + spread."""
+    fails = []
+    off, k = r["offsets_ps"], r["k"]
+    if r["p_pct"] != 0.0 or r["n"] < r["n_cycles"] - 1:
+        fails.append(f"dropout {r['p_pct']:.3f} % over {r['n']} samples, not 0 % over "
+                     f">= {r['n_cycles'] - 1}")
+    lo, hi = r["band_model_ps"]
+    out = [n for n, o in enumerate(off) if not lo <= o <= hi]
+    if out:
+        fails.append(f"offset outside the band [{lo}, {hi}] ps at samples {out[:5]}"
+                     f"{' ...' if len(out) > 5 else ''}")
+    peaks = [max(off[i:i + k]) for i in range(0, len(off) - k + 1, k)]
+    spread = r["spread_ps"]
+    grown = [j for j, pk in enumerate(peaks) if abs(pk - peaks[0]) > spread]
+    if grown:
+        fails.append(f"secular growth: peak of re-phase interval(s) {grown[:5]} more than the "
+                     f"latency spread {spread} ps from the first interval's {peaks[0]} ps")
+    if max(off[-k:]) > max(off[:k]) + spread:
+        fails.append(f"secular growth: last interval peak {max(off[-k:])} ps > first "
+                     f"{max(off[:k])} ps + spread {spread} ps")
+    return fails
 
 
 def stuff_jitter_ps(bitrate_bps: int, dlc: int) -> int:
@@ -361,13 +468,8 @@ def at9_four_slaves(n_cycles: int = 10_000, *, sync: bool = True, k: int = 100,
     ref = oc.omni_sync_frame() if sync else oc.nmt_frame(0, oc.NMT_START)
     d_nom = delivery_latency_ps(bitrate_bps, ref)
     results = [evaluate_slave(s, master, n_cycles, rho, d_nom) for s, rho in zip(slaves, rhos)]
-    cycles = dict(master.cycle_log)
-    by_tick: dict[int, list[int]] = {}
-    for s in slaves:
-        for t in s.control_log:
-            if t.tick in cycles:
-                by_tick.setdefault(t.tick, []).append(t.t_ps)
-    inter = [max(v) - min(v) for v in by_tick.values() if len(v) == len(slaves)]
+    inter = list(inter_slave_skew_ps([s.control_log for s in slaves], master.cycle_log)
+                 .values())
     n_all = sum(r.n for r in results)
     drops = sum(r.n_dropout for r in results)
     tau = 10**12 // bitrate_bps

@@ -10,6 +10,9 @@ with them.
 
 from __future__ import annotations
 
+import dataclasses
+from types import SimpleNamespace
+
 import pytest
 
 from sim_models.can_bus import worst_case_bits
@@ -20,27 +23,58 @@ from sim_models.sim_time import PS_PER_MS, PS_PER_US
 
 def test_at5_drift_reproduction() -> None:
     r = E.at5_drift_reproduction(1000)
-    assert r["t_dif0_ms"] == pytest.approx(1.74, abs=1e-6)
-    assert r["offset_after_40_ms"] == pytest.approx(2.46, abs=0.02)
+    assert E.check_at5(r) == []
     assert r["offset_after_40_ms"] == pytest.approx(r["offset_after_40_model_ms"], abs=1e-6)
-    assert 180 <= r["n_drift_model"] <= 191  # the digest's range
-    assert abs(r["onset_measured"] - r["n_drift_model"]) <= 1
-    assert abs(r["n_drift_eq23"] - r["n_drift_model"]) <= 1  # every later sample is lost
-    assert abs(r["p_pct"] - r["p_model_pct"]) <= 100.0 / r["n"] + 1e-9
-    off = r["offsets_ps"]
-    step = E.THESIS_RHO_PPM * 1e-6 * 5 * PS_PER_MS
-    assert all(abs(off[n] - (off[0] + n * step)) <= 2 for n in range(len(off)))
+
+
+def test_at5_checker_fails_on_wrong_drift_and_shifted_offset() -> None:
+    # a slave drifting at 3000 ppm instead of the thesis' 3618: 2.34 ms after 40 periods,
+    # later onset, off the model line from sample 1 on
+    wrong = E.check_at5(E.at5_drift_reproduction(1000, rho_ppm=3000.0))
+    assert any("offset after 40 periods 2.34" in f for f in wrong)
+    assert any("off the model line" in f and "[1, 2, 3, 4, 5] ..." in f for f in wrong)
+    assert any(f.startswith("onset ") for f in wrong)
+    # a start offset 50 us late
+    late = E.check_at5(E.at5_drift_reproduction(300, t_dif0_ps=1_790 * PS_PER_US))
+    assert any(f.startswith("t_dif(0) = 1.79") for f in late)
+    # the thesis run with one offset shifted by 5 us: reported at that sample only
+    r = E.at5_drift_reproduction(1000)
+    off = list(r["offsets_ps"])
+    off[100] += 5 * PS_PER_US
+    assert E.check_at5(r | {"offsets_ps": off}) == [
+        "offset off the model line t_dif(0) + n·ρ·T_s at samples [100]"]
+    # an onset two samples off the model
+    assert E.check_at5(r | {"onset_measured": r["n_drift_model"] + 2}) == [
+        f"onset {r['n_drift_model'] + 2} not within ±1 of the model {r['n_drift_model']}"]
 
 
 @pytest.mark.parametrize("dlc", range(2, 9))
 def test_at6_sync_removes_drift(dlc: int) -> None:
     r = E.at6_sync_removes_drift(dlc, n_cycles=3000, k=10)
-    assert r["n"] >= 2999 and r["p_pct"] == 0.0
+    assert r["n"] >= 2999
+    assert E.check_at6(r) == []
+
+
+def test_at6_checker_fails_on_band_and_secular_growth() -> None:
+    r = E.at6_sync_removes_drift(2, n_cycles=300, k=10)
+    assert E.check_at6(r) == []
     lo, hi = r["band_model_ps"]
-    assert lo <= r["offset_min_ps"] and r["offset_max_ps"] <= hi
-    # no secular growth: the last interval's peak exceeds the first one's by at most the
-    # content-dependent spread of the command latency (stuff bits)
-    assert r["last_k_max_ps"] <= r["first_k_max_ps"] + r["run"].d_max_ps - r["run"].d_min_ps
+    # one sample above the band
+    off = list(r["offsets_ps"])
+    off[123] = hi + 1
+    fails = E.check_at6(r | {"offsets_ps": off})
+    assert fails[0] == f"offset outside the band [{lo}, {hi}] ps at samples [123]"
+    # a slow secular growth that stays inside the band: 50 ns per sample (15 us in 300)
+    ramp = [o + 50_000 * n for n, o in enumerate(r["offsets_ps"])]
+    assert max(ramp) <= hi
+    fails = E.check_at6(r | {"offsets_ps": ramp})
+    assert len(fails) == 2 and all(f.startswith("secular growth") for f in fails)
+    # a slave drifting twice as fast as the thesis' slave leaves the band in the second half
+    # of every re-phase interval (K = 10: samples 6..9, 16..19, ...)
+    fast = E.check_at6(E.at6_sync_removes_drift(2, n_cycles=300, k=10, rho_ppm=7236.0))
+    assert fast == [f"offset outside the band [{lo}, {hi}] ps at samples [6, 7, 8, 9, 16] ..."]
+    # a dropout
+    assert E.check_at6(r | {"p_pct": 1 / 3})[0].startswith("dropout 0.333 %")
 
 
 def test_at7_bitrate_sweep_with_sync_5ms() -> None:
@@ -162,3 +196,81 @@ def test_dropout_counter_detects_injected_late_frame() -> None:
     # sample 21 sees both commands 20 and 21 arrive and takes 21: no loss
     assert late.slave.control_log[21].status == "overwritten"
     assert late.slave.control_log[21].dropout is False
+
+
+# ==========================================================================================
+# the slave evaluation used by the RTL system bench (evaluate_slave) and the skew checkers
+# ==========================================================================================
+
+
+def _clean_run():
+    """0 ppm slave sampling 200 us after every cycle instant: no dropout, constant offset."""
+    run = E.run_two_node(1_000_000, 2, PS_PER_MS, 0.0, 50, initial_offset_ps=200 * PS_PER_US)
+    r = E.evaluate_slave(run.slave, run.master, 50, 0.0, 200 * PS_PER_US)
+    assert r.n == 50 and r.n_dropout == 0 and r.onset is None and r.skew_max_ps <= 2
+    return run
+
+
+def _doctored(slave, log):
+    return SimpleNamespace(name=slave.name, control_log=log, rephase_log=slave.rephase_log,
+                           value_fn=slave.value_fn, axis=slave.axis)
+
+
+def test_evaluate_slave_reports_doctored_control_log() -> None:
+    """The evaluation decides from the logged values, not from the slave's own flag: a
+    sample that took the previous cycle's command (delayed) and one that took none (missing)
+    are the dropouts, at their indices, although their flags still say "no dropout"."""
+    run = _clean_run()
+    slave = run.slave
+    log = list(slave.control_log)
+    log[20] = dataclasses.replace(log[20], value=slave.value_fn(19, slave.axis))
+    log[33] = dataclasses.replace(log[33], value=None, status="missing")
+    assert not log[20].dropout and not log[33].dropout
+    r = E.evaluate_slave(_doctored(slave, log), run.master, 50, 0.0, 200 * PS_PER_US)
+    assert (r.n_dropout, r.onset, r.dropout_ticks) == (2, 20, [20, 33])
+    assert r.p_pct == pytest.approx(4.0) and r.n_drift == 48
+    # a sample beyond the counted cycles is not counted
+    r = E.evaluate_slave(_doctored(slave, log), run.master, 20, 0.0, 200 * PS_PER_US)
+    assert (r.n, r.n_dropout) == (20, 0)
+
+
+def test_evaluate_slave_reports_command_missing_on_the_bus() -> None:
+    """Cycle 20's command never sent (the cycle instant is logged): the slave keeps cycle
+    19's value at sample 20; exactly that sample is a dropout."""
+    run = E.run_two_node(1_000_000, 2, PS_PER_MS, 0.0, 50, initial_offset_ps=200 * PS_PER_US,
+                         drop_cycles={20})
+    assert run.result.dropout_ticks == [20] and run.result.onset == 20
+    assert run.slave.control_log[20].status == "missing"
+    assert run.slave.control_log[20].value == run.slave.value_fn(19, run.slave.axis)
+
+
+def test_skew_checker_reports_shifted_sample_and_cycle() -> None:
+    """Per-slave skew max_n |s_n - (m_n + D)|: a sample 7 us late and a master cycle instant
+    50 us late are reported with their size and index."""
+    run = _clean_run()
+    slave, d = run.slave, 200 * PS_PER_US
+    log = list(slave.control_log)
+    log[40] = dataclasses.replace(log[40], t_ps=log[40].t_ps + 7 * PS_PER_US)
+    r = E.evaluate_slave(_doctored(slave, log), run.master, 50, 0.0, d)
+    assert r.skew_max_tick == 40 and abs(r.skew_max_ps - 7 * PS_PER_US) <= 2
+    assert r.n_dropout == 0
+    # the AT-9 bound (|rho|·K·T_s + 2 tau_bit) for a 0 ppm slave is 2 us: the check fails
+    assert r.skew_max_ps > 2 * PS_PER_US
+    cycles = [(c, t + 50 * PS_PER_US if c == 25 else t) for c, t in run.master.cycle_log]
+    r = E.evaluate_slave(slave, SimpleNamespace(cycle_log=cycles), 50, 0.0, d)
+    assert r.skew_max_tick == 25 and abs(r.skew_max_ps - 50 * PS_PER_US) <= 2
+    assert abs(r.offsets_ps[25] - (r.offsets_ps[24] - 50 * PS_PER_US)) <= 4
+
+
+def test_inter_slave_skew_reports_shifted_sample() -> None:
+    r = E.at9_four_slaves(300, sync=True, feedback=False)
+    logs = [s.control_log for s in r["slave_models"]]
+    cycles = r["master"].cycle_log
+    clean = E.inter_slave_skew_ps(logs, cycles)
+    assert max(clean.values()) == r["inter_slave_skew_max_ps"] <= r["bound_inter_ps"]
+    shifted = [list(lg) for lg in logs]
+    shifted[2][150] = dataclasses.replace(shifted[2][150],
+                                          t_ps=shifted[2][150].t_ps + 30 * PS_PER_US)
+    skew = E.inter_slave_skew_ps(shifted, cycles)
+    worse = [n for n in skew if skew[n] != clean[n]]
+    assert worse == [150] and skew[150] > r["bound_inter_ps"]
