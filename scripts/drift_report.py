@@ -10,10 +10,13 @@ Runs the transaction-level experiments of ``sim_models.omni.experiments`` and wr
   T_s 1 ms, 1 Mbit/s, with Omni SYNC every 100 cycles and without sync;
 * ``dropout_sweep.png``: dropout vs data length per bit rate, T_s 5 ms and 1 ms, without and
   with sync (the thesis' Figs 2-18/2-19 and 3-24..3-28); infeasible cells marked;
-* ``dropout_table.md`` / ``dropout_table.json``: the same numbers, plus ``summary.json``.
+* ``dropout_table.md`` / ``dropout_table.json``: the per-cell numbers (p, onset, K; table code
+  in ``sim_models/omni/report.py``), plus ``summary.json``.
 
-``--docs`` also copies the three plots (small PNGs) to ``docs/img/``. ``--cycles`` shortens the
-sweeps (default 3000, the thesis' N).
+``--docs`` also copies the three plots (small PNGs) to ``docs/img/`` and rewrites the table
+block of ``docs/omni_drift.md`` (between its markers; nothing else in the file). ``--cycles``
+shortens the sweeps (default 3000, the thesis' N; ``--docs`` needs the default), ``--out``
+writes elsewhere, ``--at9-cycles`` / ``--at10-cycles`` shorten the other runs (tests).
 """
 
 from __future__ import annotations
@@ -33,10 +36,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sim_models.omni import experiments as E  # noqa: E402
+from sim_models.omni import report  # noqa: E402
 from sim_models.sim_time import PS_PER_MS, PS_PER_US  # noqa: E402
 
 OUT = ROOT / "build" / "drift"
 DOCS_IMG = ROOT / "docs" / "img"
+DOCS_MD = ROOT / "docs" / "omni_drift.md"
+DOCS_CYCLES = 3000  #: N of the table in the docs
 PLOTS = ("at5_offset.png", "four_slaves_offset.png", "dropout_sweep.png")
 
 
@@ -69,17 +75,18 @@ def plot_at5(path: Path) -> dict:
         "sync_p_pct": sync["p_pct"]}
 
 
-def plot_four(path: Path) -> dict:
+def plot_four(path: Path, n_cycles: int = 10_000) -> dict:
     res = {}
     fig, axes = plt.subplots(1, 2, figsize=(8.0, 3.2), dpi=90)
     for ax, sync in zip(axes, (False, True)):
-        r = E.at9_four_slaves(10_000, sync=sync, feedback=True)
+        r = E.at9_four_slaves(n_cycles, sync=sync, feedback=True)
         for s in r["slaves"]:
             y = [(o - s.nominal_latency_ps) / PS_PER_US for o in s.offsets_ps]
             ax.plot(y, lw=0.8, label=f"{s.name} {s.rho_ppm:+.0f} ppm")
         if sync:
-            ax.set_xlim(0, 500)  # the pattern repeats every K = 100 samples
-        ax.set_title(("Omni SYNC every 100 cycles (first 500 of 10 000)" if sync
+            ax.set_xlim(0, min(500, n_cycles))  # the pattern repeats every K = 100 samples
+        n_txt = f"{n_cycles:_}".replace("_", " ")
+        ax.set_title((f"Omni SYNC every 100 cycles (first 500 of {n_txt})" if sync
                       else "no sync") + ", T_s 1 ms", fontsize=9)
         ax.set_xlabel("sample n")
         ax.grid(alpha=0.3)
@@ -95,17 +102,6 @@ def plot_four(path: Path) -> dict:
     fig.savefig(path)
     plt.close(fig)
     return res
-
-
-def sweeps(n_cycles: int) -> list[dict]:
-    cells = []
-    for period_ms in (5, 1):
-        for sync in (False, True):
-            for c in E.sweep(period_ms * PS_PER_MS, n_cycles=n_cycles, sync=sync):
-                c["period_ms"] = period_ms
-                c["sync"] = sync
-                cells.append(c)
-    return cells
 
 
 def plot_sweep(cells: list[dict], path: Path) -> None:
@@ -137,47 +133,38 @@ def plot_sweep(cells: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def table_md(cells: list[dict], n_cycles: int) -> str:
-    lines = [f"# Dropout p [%] (Eq 2-2), two nodes, slave +3618 ppm, N = {n_cycles}", "",
-             "`*` = flagged infeasible by the master's check (worst-case frame + 10 % margin "
-             "> T_s).", ""]
-    for period_ms in (5, 1):
-        for sync in (False, True):
-            lines.append(f"## T_s = {period_ms} ms, " + ("thesis re-phase (K per cell)"
-                                                       if sync else "no sync"))
-            lines.append("")
-            lines.append("| kbit/s | " + " | ".join(f"{n} B" for n in range(2, 9)) + " |")
-            lines.append("|---|" + "---|" * 7)
-            for rate in E.RATES:
-                row = [c for c in cells if c["period_ms"] == period_ms and c["sync"] == sync
-                       and c["bitrate_bps"] == rate]
-                vals = [f"{c['p_pct']:.1f}{'' if c['feasible'] else '*'}"
-                        + (f" (K {c['k']})" if sync else "") for c in row]
-                lines.append(f"| {rate // 1000} | " + " | ".join(vals) + " |")
-            lines.append("")
-    return "\n".join(lines)
-
-
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cycles", type=int, default=3000, help="N of the sweeps")
-    ap.add_argument("--docs", action="store_true", help="copy the plots to docs/img/")
-    args = ap.parse_args()
-    OUT.mkdir(parents=True, exist_ok=True)
-    summary = {"at5": plot_at5(OUT / PLOTS[0])}
-    summary["at9"] = plot_four(OUT / PLOTS[1])
-    cells = sweeps(args.cycles)
-    plot_sweep(cells, OUT / PLOTS[2])
-    (OUT / "dropout_table.json").write_text(json.dumps(cells, indent=1) + "\n")
-    (OUT / "dropout_table.md").write_text(table_md(cells, args.cycles) + "\n")
+    ap.add_argument("--cycles", type=int, default=DOCS_CYCLES, help="N of the sweeps")
+    ap.add_argument("--at9-cycles", type=int, default=10_000, help="N of the AT-9 runs")
+    ap.add_argument("--at10-cycles", type=int, default=2000, help="N of the AT-10 runs")
+    ap.add_argument("--out", type=Path, default=OUT, help="output directory")
+    ap.add_argument("--docs", action="store_true",
+                    help="copy the plots to docs/img/ and the table into docs/omni_drift.md")
+    args = ap.parse_args(argv)
+    if args.docs and args.cycles != DOCS_CYCLES:
+        ap.error(f"--docs writes the documented N = {DOCS_CYCLES}; drop --cycles")
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {"at5": plot_at5(out / PLOTS[0])}
+    summary["at9"] = plot_four(out / PLOTS[1], args.at9_cycles)
+    cells = report.sweep_cells(args.cycles)
+    plot_sweep(cells, out / PLOTS[2])
+    table = report.dropout_table_md(cells, args.cycles)
+    (out / "dropout_table.json").write_text(json.dumps(cells, indent=1) + "\n")
+    (out / "dropout_table.md").write_text(
+        "# Dropout per cell, bit-rate x data-length sweeps\n\n"
+        + report.dropout_table_md(cells, args.cycles, heading="##"))
     summary["at10"] = {f"{rho:+.0f}_{'sync' if s else 'nosync'}":
-                       {k: v for k, v in E.at10_stress(rho, sync=s).items() if k != "run"}
+                       {k: v for k, v in E.at10_stress(rho, sync=s, n_cycles=args.at10_cycles)
+                        .items() if k != "run"}
                        for rho in (3618.0, -3618.0) for s in (True, False)}
-    (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str) + "\n")
     if args.docs:
         DOCS_IMG.mkdir(parents=True, exist_ok=True)
         for name in PLOTS:
-            shutil.copy(OUT / name, DOCS_IMG / f"omni_{name}")
+            shutil.copy(out / name, DOCS_IMG / f"omni_{name}")
+        DOCS_MD.write_text(report.replace_docs_block(DOCS_MD.read_text(), table))
     a5, a9 = summary["at5"], summary["at9"]
     print(f"AT-5: offset {a5['t_dif0_ms']:.3f} -> {a5['offset_after_40_ms']:.4f} ms after 40 "
           f"periods; N_drift model {a5['n_drift_model']}, measured onset "
@@ -186,7 +173,7 @@ def main() -> int:
         print(f"AT-9 {key}: skew max {a9[key]['skew_max_us']:.2f} us, inter-slave "
               f"{a9[key]['inter_slave_skew_max_us']:.2f} us, dropout "
               f"{a9[key]['dropout_pct']:.3f} %")
-    print(f"written: {OUT}")
+    print(f"written: {out}")
     return 0
 
 

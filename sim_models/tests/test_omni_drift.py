@@ -1,24 +1,27 @@
 """Acceptance experiments AT-5..AT-10 and AT-13 (digest §9) on the Python models, and the
 checkers' self-tests (each checker must be able to fail).
 
-Shortened runs (stated per test): AT-7 uses N = 600 instead of 3000 (K <= 243 at 5 ms, so at
-least two full re-phase intervals; the set-point values repeat every 256 cycles, so every frame
-content is covered); AT-8 uses N = 400 with sync (K <= 228) and 300 without. AT-9 runs the full
-N = 10 000 without the (non-interfering) feedback frames; ``tb/test_drift_bench.py`` runs it
-with them.
+Run lengths: AT-6 and AT-7 use the digest's N = 3000 (AT-7 also checks its 35 cells against
+the per-cell table in docs/omni_drift.md); AT-8 uses N = 400 with the thesis re-phase
+(K <= 228, so at least one full re-phase interval per cell) and checks the feasibility rule
+exactly; AT-9 runs the full N = 10 000 without the (non-interfering) feedback frames;
+``tb/test_drift_bench.py`` runs it with them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
 from sim_models.can_bus import worst_case_bits
-from sim_models.omni import check_feasibility
+from sim_models.omni import check_feasibility, report
 from sim_models.omni import experiments as E
 from sim_models.sim_time import PS_PER_MS, PS_PER_US
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "omni_drift.md"
 
 
 def test_at5_drift_reproduction() -> None:
@@ -78,11 +81,19 @@ def test_at6_checker_fails_on_band_and_secular_growth() -> None:
 
 
 def test_at7_bitrate_sweep_with_sync_5ms() -> None:
-    cells = E.sweep(5 * PS_PER_MS, n_cycles=600, sync=True)
+    """Digest N = 3000 (about 30 s on one core); the cells are the 5 ms / thesis re-phase
+    sub-table of docs/omni_drift.md, which must equal them."""
+    cells = report.sweep_cells(3000, periods_ms=(5,), syncs=(True,))
     assert len(cells) == 5 * 7
     for c in cells:
         assert c["feasible"], c["reason"]
-        assert c["p_pct"] == 0.0 and c["n"] >= 599, c
+        assert c["p_pct"] == 0.0 and c["n"] >= 2999, c
+    n_doc, doc = report.parse_table(report.docs_block(DOCS.read_text()))
+    assert n_doc == 3000
+    for c in cells:
+        key = (5, True, c["bitrate_bps"], c["dlc"])
+        assert doc[key] == report.cell_text(c), (key, "docs/omni_drift.md is stale: run "
+                                                 "scripts/drift_report.py --docs")
 
 
 def test_at7_sweep_without_sync_loses_data() -> None:
