@@ -61,6 +61,7 @@ __all__ = [
     "evaluate_drive",
     "inter_slave_skew_ps",
     "n_drift_model",
+    "n_drift_model_per_sync",
     "position_setpoint",
     "run_reference",
     "sync_counter",
@@ -108,6 +109,25 @@ def n_drift_model(t_dif0_ps: float, rho_ppm: float, period_ps: int, d_ps: float)
     its SYNC applied the set-point). The Omni-ID formula with the SYNC's latency in place of
     the command's."""
     return omni_n_drift_model(t_dif0_ps, rho_ppm, period_ps, d_ps)
+
+
+def n_drift_model_per_sync(t_dif0_ps: float, rho_ppm: float, period_ps: int,
+                           d_of_cycle: Callable[[int], int], lag: int = 1,
+                           n_max: int = 10**6) -> int | None:
+    """:func:`n_drift_model` with each SYNC's own latency (a SYNC counter byte's stuff bits make
+    it vary by up to 2 bit times): sample n (cycle ``c = 1 + lag + n``, offset ``t_dif0 +
+    n·rho·T_s`` from the SOF of SYNC c) is lost once ``t_dif(n) >= T_s + d_of_cycle(c + 1)``
+    (rho > 0) or ``t_dif(n) <= d_of_cycle(c)`` (rho < 0). None if not within ``n_max``."""
+    step = rho_ppm * 1e-6 * period_ps
+    if step == 0:
+        raise ValueError("no drift, no onset")
+    for n in range(n_max):
+        c = 1 + lag + n
+        t = t_dif0_ps + n * step
+        if (step > 0 and t >= period_ps + d_of_cycle(c + 1)) or (
+                step < 0 and t <= d_of_cycle(c)):
+            return n
+    return None
 
 
 # ==========================================================================================

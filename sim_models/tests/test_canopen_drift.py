@@ -12,6 +12,7 @@ from sim_models.canopen_slave.drift import (
     evaluate_drive,
     inter_slave_skew_ps,
     n_drift_model,
+    n_drift_model_per_sync,
     position_setpoint,
     run_reference,
     sync_counter,
@@ -169,15 +170,29 @@ def test_free_running_onset_is_the_drift_model(rho: float, resync: str,
         assert off[model] <= d < off[model - 1]
 
 
-def test_onset_with_a_counter_byte_is_the_model_within_one() -> None:
+def test_onset_with_a_counter_byte() -> None:
     """With the SYNC counter byte (1019h = 240) its stuff bits move the apply instant by up to
-    2 bit times: the onset is the model's with the shortest SYNC, within one sample."""
+    2 bit times: at +-3618 ppm (3.6 us per cycle) the onset is the model's with the shortest
+    SYNC within one sample; at +-100 ppm (0.1 us per cycle) the two extreme SYNC lengths give
+    models 20 samples apart. The model with each SYNC's own latency is exact in every case."""
     specs = [DriveSpec(1, 3618.0, "first_sync", phase_ps=700 * PS_PER_US),
-             DriveSpec(2, -3618.0, "first_sync", phase_ps=500 * PS_PER_US)]
-    run = run_reference(specs, 300)
+             DriveSpec(2, -3618.0, "first_sync", phase_ps=500 * PS_PER_US),
+             DriveSpec(3, 100.0, "first_sync", phase_ps=975 * PS_PER_US),
+             DriveSpec(4, -100.0, "first_sync", phase_ps=25 * PS_PER_US)]
+    run = run_reference(specs, 400)
+
+    def d_of(c: int) -> int:
+        return sync_latency_ps(1_000_000, sync_counter(c, 240))
+
+    d_max = max(d_of(c) for c in range(1, 241))
     for s, r in zip(specs, evaluate(run, specs)):
         model = n_drift_model(r.t_dif0_ps, s.rho_ppm, T, r.nominal_latency_ps)
-        assert r.onset_sample is not None and abs(r.onset_sample - model) <= 1, (r, model)
+        other = n_drift_model(r.t_dif0_ps, s.rho_ppm, T, d_max)
+        assert r.onset_sample is not None
+        assert min(model, other) <= r.onset_sample <= max(model, other)
+        if abs(s.rho_ppm) > 1000:
+            assert abs(r.onset_sample - model) <= 1, (r, model)
+        assert r.onset_sample == n_drift_model_per_sync(r.t_dif0_ps, s.rho_ppm, T, d_of)
 
 
 @pytest.mark.parametrize("k, rhos", [(1, (-100.0, -50.0, 50.0, 100.0)),
