@@ -10,9 +10,12 @@ figures of the two runs are compared cell by cell: the RTL master must behave as
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
+from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import Any
 
 import can
 import cocotb
@@ -21,7 +24,15 @@ from cocotb.triggers import Timer
 
 from sim_models.can_bus import worst_case_bits
 from sim_models.omni import codec as oc
-from sim_models.omni.experiments import delivery_latency_ps, evaluate_slave, n_drift_model
+from sim_models.omni.experiments import (
+    THESIS_RHO_PPM,
+    SlaveResult,
+    delivery_latency_ps,
+    evaluate_slave,
+    n_drift_model,
+    run_two_node,
+    sweep,
+)
 from sim_models.omni.slave import setpoint_value
 from sim_models.sim_time import PS_PER_US
 from tb.tblib import regmap as R
@@ -33,10 +44,14 @@ from tb.tblib.omni_system import (
     MASTER_ID,
     TAU_PS,
     SlaveSpec,
+    compare_results,
     cycle_log,
     make_slave,
+    max_offset_diff_ps,
     python_reference,
+    replay_network,
     run_rtl_cycle,
+    window_model,
 )
 from tb.tblib.runner import ROOT, run_cocotb
 from tb.tblib.system_tb import SystemTB
@@ -273,6 +288,268 @@ async def run_slow_bus_cell(dut):
     await Timer(1, "ns")
 
 
+# ==========================================================================================
+# cells of the Python sweep grid in the thesis scheme (SYNC_MODE 0)
+# ==========================================================================================
+#
+# sim_models.omni.experiments.sweep: two nodes, thesis re-phase (slave resync "thesis", every
+# K-th broadcast is the reference at which the slave zeroes its sample timer, K = default_k,
+# sample phase phi = stuff_jitter_ps) or free-running from t_dif(0) = 0.348 T_s. Each RTL cell
+# below runs the master in SYNC_MODE 0 with the cell's bit rate, period and broadcast DLC
+# (sender byte + DLC - 1 one-byte slots, the set-points the sweep's master sends) and two
+# receive-only slaves on slot 1: one re-phased as the sweep does and one free-running, anchored
+# on cycle 0 at the sweep's t_dif(0). The bus carries exactly the two-node run's frames (NMT
+# start, then one broadcast per cycle), so both slaves see what the sweep's slave sees.
+# Each slave's figures are compared with the sweep's function for the same cell
+# (run_two_node with the sweep's arguments; its summary is asserted equal to sweep()'s).
+
+@dataclass(frozen=True)
+class GridCell:
+    name: str
+    bitrate: int
+    period_us: int
+    dlc: int
+    rho_rephase_ppm: float  #: drift of the re-phased slave
+    rho_free_ppm: float  #: drift of the free-running slave
+    n_cycles: int
+
+
+# Scaling (sim time: the full core simulates about 1 ms per second of wall time):
+# * 1 ms / 100 kbit/s / DLC 2: the re-phased slave is the grid cell itself (+3618 ppm, K = 8,
+#   phi = 120 us), 45 cycles = 6 re-phases; the free-running slave drifts 10x (+36 180 ppm) so
+#   that the window is crossed within the run (at +3618 ppm it loses samples 0..77, before the
+#   command arrives, and everything from 355 on; at 10x 0..7 and from 36 on).
+# * 5 ms / 500 kbit/s / DLC 8: both slaves drift 20x (+72 360 ppm). K scales as 1/rho (the grid's
+#   K = 231 becomes 11; the saw-tooth K·rho·T_s, 4.0 ms instead of 4.2 ms, and the band it must
+#   stay in are the same), the free-running onset index as 1/rho (grid: sample 193, here 10);
+#   16 cycles = the start re-phase, one full interval and the re-phase at sample 11.
+GRID_CELLS = {
+    100_000: GridCell("1ms_100k_dlc2", 100_000, 1000, 2, THESIS_RHO_PPM, 10 * THESIS_RHO_PPM,
+                      45),
+    500_000: GridCell("5ms_500k_dlc8", 500_000, 5000, 8, 20 * THESIS_RHO_PPM,
+                      20 * THESIS_RHO_PPM, 16),
+}
+SWEEP_OFFSET_FRACTION = inspect.signature(sweep).parameters["initial_offset_fraction"].default
+
+
+def grid_reference(cell: GridCell) -> dict[str, Any]:
+    """The sweep's figures for ``cell`` (re-phased and free-running) and the runs behind them."""
+    period_ps = cell.period_us * PS_PER_US
+    (fig_t,) = sweep(period_ps, rates=(cell.bitrate,), dlcs=(cell.dlc,),
+                     n_cycles=cell.n_cycles, sync=True, rho_ppm=cell.rho_rephase_ppm)
+    (fig_f,) = sweep(period_ps, rates=(cell.bitrate,), dlcs=(cell.dlc,),
+                     n_cycles=cell.n_cycles, sync=False, rho_ppm=cell.rho_free_ppm)
+    t_dif0 = int(SWEEP_OFFSET_FRACTION * period_ps)
+    run_t = run_two_node(cell.bitrate, cell.dlc, period_ps, cell.rho_rephase_ppm, cell.n_cycles,
+                         resync="thesis", k=fig_t["k"], sample_phase_ps=fig_t["sample_phase_ps"])
+    run_f = run_two_node(cell.bitrate, cell.dlc, period_ps, cell.rho_free_ppm, cell.n_cycles,
+                         initial_offset_ps=t_dif0)
+    assert run_t.summary() == fig_t and run_f.summary() == fig_f, "not the sweep's cell"
+    assert fig_t["feasible"], fig_t["reason"]
+    specs = [SlaveSpec(0x04, 1, cell.rho_rephase_ppm, "thesis", None,
+                       sample_phase_ps=fig_t["sample_phase_ps"]),
+             SlaveSpec(0x08, 1, cell.rho_free_ppm, "none", None, anchor_offset_ps=t_dif0)]
+    return {"k": fig_t["k"], "phase_ps": fig_t["sample_phase_ps"], "t_dif0_ps": t_dif0,
+            "rephased": run_t, "free": run_f, "specs": specs}
+
+
+def grid_cell_checks(cell: GridCell, ref: dict[str, Any], models: list, cyc: list,
+                     commands: list) -> tuple[list[str], dict[str, Any]]:
+    """Every check of a grid cell on one run's slaves (live RTL, replayed or doctored): the
+    absolute expectations and the comparison with the sweep. Returns (problems, figures)."""
+    period_ps = cell.period_us * PS_PER_US
+    tau = 10**12 // cell.bitrate
+    k, phase, n_cyc = ref["k"], ref["phase_ps"], cell.n_cycles
+    master_like = SimpleNamespace(cycle_log=cyc)
+    m_t, m_f = models
+    r_t = evaluate_slave(m_t, master_like, n_cyc, cell.rho_rephase_ppm)
+    r_f = evaluate_slave(m_f, master_like, n_cyc, cell.rho_free_ppm)
+    ref_t, ref_f = ref["rephased"].result, ref["free"].result
+    lat = [delivery_latency_ps(cell.bitrate, m) for m in commands[:n_cyc]]
+    problems = []
+    # re-phased slave: 0 %, a re-phase at every K-th sample, offsets in the AT-6 band
+    if r_t.n != n_cyc or r_t.n_dropout != 0:
+        problems.append(f"re-phased: {r_t.n_dropout} of {r_t.n} samples lost, expected 0 of "
+                        f"{n_cyc}")
+    rephased = [t.tick for t in m_t.control_log if t.rephase]
+    if rephased != list(range(0, len(m_t.control_log), k)):
+        problems.append(f"re-phased samples {rephased[:8]}.. not every {k}-th")
+    lo = min(lat) + phase
+    hi = max(lat) + phase + int(k * cell.rho_rephase_ppm * 1e-6 * period_ps) + tau
+    if not r_t.offsets_ps or not lo <= min(r_t.offsets_ps) <= max(r_t.offsets_ps) <= hi:
+        problems.append(f"re-phased: offsets outside [{lo}, {hi}] ps")
+    problems += [f"re-phased vs sweep: {p}" for p in compare_results(r_t, ref_t, tau_ps=tau)]
+    # free-running slave: anchored on cycle 0, dropout where the drift model says
+    if not cyc or m_f.anchor_ps != cyc[0][1]:
+        problems.append(f"free-running: anchored at {m_f.anchor_ps}, not cycle 0's SOF")
+    t_dif0 = r_f.offsets_ps[0] if r_f.offsets_ps else None
+    if t_dif0 is None or abs(t_dif0 - ref["t_dif0_ps"]) > 2:
+        problems.append(f"free-running: t_dif(0) {t_dif0} != {ref['t_dif0_ps']} ps")
+        t_dif0 = ref["t_dif0_ps"]
+    window = window_model(t_dif0, cell.rho_free_ppm, period_ps, lat)
+    drops = [t.tick for t in m_f.control_log if t.dropout and t.expected_cycle < n_cyc]
+    first_good = next((n for n in range(n_cyc) if n not in window), None)
+    late = [n for n in drops if first_good is not None and n > first_good]
+    lag_onset = late[0] if late else None
+    lag_model = (n_drift_model(t_dif0, cell.rho_free_ppm, period_ps, lat[min(lag_onset + 1,
+                                                                             n_cyc - 1)])
+                 if lag_onset is not None else None)
+    if r_f.onset is None or not window or abs(r_f.onset - window[0]) > 1:
+        problems.append(f"free-running: onset {r_f.onset}, window model "
+                        f"{window[0] if window else None}")
+    if lag_onset is None or abs(lag_onset - lag_model) > 1:
+        problems.append(f"free-running: drift onset {lag_onset}, n_drift_model {lag_model}")
+    if abs(len(drops) - len(window)) > 1:
+        problems.append(f"free-running: {len(drops)} lost, window model {len(window)}")
+    problems += [f"free-running vs sweep: {p}" for p in compare_results(r_f, ref_f, tau_ps=tau)]
+
+    def row(r: SlaveResult) -> dict[str, Any]:
+        return {"n": r.n, "dropout": r.n_dropout, "onset": r.onset,
+                "max_offset_us": round(r.skew_max_ps / 1e6, 3),
+                "min_offset_us": round(min(r.offsets_ps, default=0) / 1e6, 3)}
+
+    figures = {
+        "rephased": {"rho_ppm": cell.rho_rephase_ppm, "k": k, "phase_us": phase / 1e6,
+                     "rtl": row(r_t), "sweep": row(ref_t), "rephases": len(rephased),
+                     "band_us": [lo / 1e6, hi / 1e6],
+                     "max_offset_diff_ps": max_offset_diff_ps(r_t, ref_t)},
+        "free": {"rho_ppm": cell.rho_free_ppm, "t_dif0_us": t_dif0 / 1e6, "rtl": row(r_f),
+                 "sweep": row(ref_f), "window_model_first": window[0] if window else None,
+                 "window_model_lost": len(window), "drift_onset": lag_onset,
+                 "n_drift_model": lag_model,
+                 "max_offset_diff_ps": max_offset_diff_ps(r_f, ref_f)},
+    }
+    return problems, figures
+
+
+def doctored_checks(cell: GridCell, ref: dict[str, Any], frames: list, cyc: list,
+                    commands: list) -> dict[str, list[str]]:
+    """The grid-cell checks on doctored versions of one run (negative tests): the cycle log
+    shifted by one cycle; the bus frames replayed without one broadcast (a cycle that is not a
+    re-phase reference, before the free-running onset), and without the second reference
+    broadcast (cycle K). Each entry must be non-empty."""
+    period_ps = cell.period_us * PS_PER_US
+    k = ref["k"]
+    bc = [i for i, (_, m) in enumerate(frames) if m.arbitration_id == 0x100 | MASTER_ID]
+
+    def replay(drop: int | None) -> list:
+        kept = [f for i, f in enumerate(frames) if drop is None or i != bc[drop]]
+        return replay_network(ref["specs"], kept, period_ps=period_ps, k=k, bitrate=cell.bitrate)
+
+    models = replay(None)
+    shifted = [(c, t) for (c, _), (_, t) in zip(cyc, cyc[1:])]
+    onset = ref["free"].result.onset
+    j = max(1, min(k, onset if onset else k) // 2)  # below K, and below a late onset
+    return {
+        "shifted_cycle_log": grid_cell_checks(cell, ref, models, shifted, commands)[0],
+        f"broadcast_{j}_removed": grid_cell_checks(cell, ref, replay(j), cyc, commands)[0],
+        f"reference_broadcast_{k}_removed": grid_cell_checks(cell, ref, replay(k), cyc,
+                                                             commands)[0],
+    }
+
+
+@cocotb.test(timeout_time=400, timeout_unit="ms",
+             skip=int(os.environ.get("PARAM_CAN_BITRATE_BPS", "0")) not in GRID_CELLS)
+async def run_grid_cell(dut):
+    """Purpose: a cell of the Python sweep grid (two nodes, thesis re-phase / free-running) run
+    on the RTL master in the thesis scheme (SYNC_MODE 0), cross-checked with the sweep's model
+    of the same cell. Scalings (details above ``GRID_CELLS``): N = 45 / 16 cycles instead of
+    the sweep's 3000; 1 ms / 100 kbit/s / DLC 2: re-phased slave at the grid's +3618 ppm
+    (K = 8), free-running slave at 10x (+36 180 ppm); 5 ms / 500 kbit/s / DLC 8: both slaves at
+    20x (+72 360 ppm), so K = 11 instead of 231 and the onset 10 instead of 193 (the sweep's
+    model is run at the same scaled drift and N).
+
+    Verifies: the cycle frame is the broadcast in every cycle (no Omni SYNC, no other frame
+    after the NMT start), byte-exact with the sweep master's command of that cycle, SOFs exactly
+    T_s apart; the re-phased slave (K, phi as the sweep chooses them) loses 0 samples, re-phases
+    at every K-th sample and its offsets stay in [D_min + phi, D_max + phi + K·rho·T_s + tau]
+    (AT-6/AT-7/AT-8 cell); the free-running slave starts at the sweep's t_dif(0) on cycle 0 and
+    loses samples where the window model D_n < t_dif(n) < T_s + D_n+1 says (first dropout
+    +-1, drift onset = n_drift_model +-1); both slaves' dropout count and onset equal the
+    sweep's exactly and every sample offset s_n - m_n is within two bit times of the sweep's;
+    a replay of the recorded bus frames gives exactly the RTL figures; the same checks report
+    the run as wrong with the cycle log shifted by one cycle, with one broadcast removed and
+    with a re-phase reference removed (the checks can fail).
+    """
+    cell = GRID_CELLS[int(os.environ["PARAM_CAN_BITRATE_BPS"])]
+    period_ps = cell.period_us * PS_PER_US
+    ref = grid_reference(cell)
+    tb = SystemTB(dut, node_ids=(), with_raw_node=False)
+    models = [tb.bus.attach(make_slave(tb.sched, s, period_ps, ref["k"], cell.bitrate))
+              for s in ref["specs"]]
+    await tb.reset()
+    await tb.wait_master_ready()
+    mon = await run_rtl_cycle(tb, ref["specs"], period_us=cell.period_us,
+                              n_cycles=cell.n_cycles, sync_k=1, sync_mode=0,
+                              n_axes=cell.dlc - 1)
+    cyc = cycle_log(tb, mon, cell.n_cycles)
+    frames = tb.frames()
+    # master side: exact period, the cycle frame is the broadcast, byte-exact, nothing else
+    fires = mon.fires[:cell.n_cycles]
+    assert {b - a for a, b in zip(fires, fires[1:])} == {period_ps}
+    assert {b[1] - a[1] for a, b in zip(cyc, cyc[1:])} == {period_ps}, "SOFs not T_s apart"
+    assert bytes(frames[0].msg.data) == b"\x00\x01" and frames[0].msg.arbitration_id == 0
+    commands = [r.msg for r in frames[1:]]
+    assert len(commands) == cell.n_cycles, (len(commands), cell.n_cycles)
+    sweep_master = ref["rephased"].master
+    for c, (msg, (_, t0), r) in enumerate(zip(commands, cyc, frames[1:])):
+        exp = sweep_master.command_frame(c)
+        assert (msg.arbitration_id, bytes(msg.data)) == (exp.arbitration_id, bytes(exp.data)), \
+            (c, msg, exp)
+        assert r.t_start_ps == t0, (c, r.t_start_ps, t0)
+    cnt = await tb.host.omni_counters()
+    assert cnt["late"] == 0 and cnt["unexpected"] == 0, cnt
+    # the slaves: absolute expectations and the sweep's figures
+    problems, figures = grid_cell_checks(cell, ref, models, cyc, commands)
+    for part in ("rephased", "free"):
+        dut._log.info("%s %s: %s", cell.name, part, figures[part])
+    assert not problems, problems
+    # the recorded frames replayed into fresh slaves give the same figures (faithful replay) ...
+    recorded = [(r.t_start_ps, r.msg) for r in frames]
+    replayed = replay_network(ref["specs"], recorded, period_ps=period_ps, k=ref["k"],
+                              bitrate=cell.bitrate)
+    for live, rep, rho in zip(models, replayed, (cell.rho_rephase_ppm, cell.rho_free_ppm)):
+        a = evaluate_slave(live, SimpleNamespace(cycle_log=cyc), cell.n_cycles, rho)
+        b = evaluate_slave(rep, SimpleNamespace(cycle_log=cyc), cell.n_cycles, rho)
+        assert (a.n_dropout, a.onset, a.offsets_ps) == (b.n_dropout, b.onset, b.offsets_ps)
+    # ... and the checks fail on doctored versions of this run
+    doctored = doctored_checks(cell, ref, recorded, cyc, commands)
+    for what, found in doctored.items():
+        dut._log.info("doctored %s: %s", what, found[:3])
+        assert found, f"the checks did not notice: {what}"
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / f"grid_{cell.name}.json").write_text(json.dumps(
+        {"cell": {"period_us": cell.period_us, "bitrate": cell.bitrate, "dlc": cell.dlc,
+                  "cycles": cell.n_cycles, "sync_mode": 0},
+         **figures, "doctored_runs_flagged": {w: len(f) for w, f in doctored.items()}},
+        indent=2) + "\n")
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
+
+def test_grid_checks_can_fail():
+    """Purpose: the grid-cell checks of ``run_grid_cell`` without a simulator, on a Python
+    recording of each cell (the sweep's own re-phased run: its bus frames and cycle log).
+
+    Verifies: the recording replayed into the bench's two slaves (the re-phased one and the
+    anchored free-running one) passes every check, i.e. the bench's harness reproduces the
+    sweep's cell exactly; the same checks report problems for the cycle log shifted by one
+    cycle, one broadcast removed and a re-phase reference removed.
+    """
+    for cell in GRID_CELLS.values():
+        ref = grid_reference(cell)
+        run = ref["rephased"]
+        frames = [(r.t_start_ps, r.msg) for r in run.bus.records if r.kind == "frame"]
+        cyc = list(run.master.cycle_log)
+        commands = [m for _, m in frames[1:]]
+        models = replay_network(ref["specs"], frames, period_ps=cell.period_us * PS_PER_US,
+                                k=ref["k"], bitrate=cell.bitrate)
+        problems, _ = grid_cell_checks(cell, ref, models, cyc, commands)
+        assert problems == [], (cell.name, problems)
+        for what, found in doctored_checks(cell, ref, frames, cyc, commands).items():
+            assert found, (cell.name, what)
+
+
 @cocotb.test(timeout_time=500, timeout_unit="ms")
 async def run_node_monitoring_and_traces(dut):
     """Purpose: node monitoring by remote frame (AT-11), the platform's frames of Table 4-2 and
@@ -419,6 +696,14 @@ def test_omni_system_125k(request):
     run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
                name=request.node.name, parameters={**SYSTEM, "CAN_BITRATE_BPS": SLOW_BITRATE},
                stop_time_ms=5000, ieee_asserts="disable", testcase=["run_slow_bus_cell"])
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("bitrate", sorted(GRID_CELLS), ids=lambda b: f"{b // 1000}k")
+def test_omni_system_grid(request, bitrate):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_omni_system",
+               name=request.node.name, parameters={**SYSTEM, "CAN_BITRATE_BPS": bitrate},
+               stop_time_ms=1000, ieee_asserts="disable", testcase=["run_grid_cell"])
 
 
 @pytest.mark.sim
