@@ -245,3 +245,35 @@ def max_offset_diff_ps(rtl: SlaveResult, ref: SlaveResult) -> int:
     """Largest per-sample |offset difference| of two runs (over the samples both have)."""
     return max((abs(x - y) for x, y in zip(rtl.offsets_ps, ref.offsets_ps)), default=0)
 
+
+async def axes_delivered(tb: SystemTB, slaves: list[SlaveSpec], models: list[OmniSlave],
+                         cyc: list[tuple[int, int]], n_cycles: int,
+                         period_ps: int) -> dict[int, dict[str, bool]]:
+    """Per feedback-sending axis of a run: was every set-point and every feedback frame
+    delivered in its cycle? For the cycles k < ``n_cycles - 1`` (the last one's sample comes
+    after the host stopped the cycle, as in every evaluation here):
+
+    * ``setpoints``: the slave's sample that needs cycle k holds cycle k's set-point, for
+      every such k (no dropout, no cycle without its sample);
+    * ``feedback_on_bus``: exactly one feedback frame of the axis (its fc to the master, byte
+      0 = its node) starts in ``[m_k, m_k + T_s)``;
+    * ``stored``: the master stored every one of the axis' feedback frames (slot SEQ = frames
+      on the bus, mod 2^16) and counted no cycle without feedback (slot MISSED = 0).
+
+    Reads each slot's feedback snapshot through the host (acknowledging it)."""
+    needed = set(range(n_cycles - 1))
+    frames = tb.frames()
+    out: dict[int, dict[str, bool]] = {}
+    for slot, (s, m) in enumerate((s, m) for s, m in zip(slaves, models) if s.fc is not None):
+        good = {t.expected_cycle for t in m.control_log if t.dropout is False}
+        bad = [t for t in m.control_log if t.dropout and t.expected_cycle in needed]
+        fb = [r.t_start_ps for r in frames if r.msg.arbitration_id == (s.fc << 8 | MASTER_ID)
+              and r.msg.dlc >= 1 and r.msg.data[0] == s.node]
+        per_cycle = [sum(1 for t in fb if t0 <= t < t0 + period_ps) for k, t0 in cyc
+                     if k in needed]
+        snap = await tb.host.omni_feedback(slot)
+        out[s.node] = {"setpoints": needed <= good and not bad,
+                       "feedback_on_bus": len(per_cycle) == len(needed)
+                       and set(per_cycle) == {1},
+                       "stored": snap["missed"] == 0 and snap["seq"] == len(fb) % 65536}
+    return out
