@@ -59,6 +59,7 @@ add_fileset_file canopen_pkg.vhd          VHDL PATH ../rtl/canopen_pkg.vhd
 add_fileset_file canopen_regs_pkg.vhd     VHDL PATH ../rtl/canopen_regs_pkg.vhd
 add_fileset_file canopen_util_pkg.vhd     VHDL PATH ../rtl/canopen_util_pkg.vhd
 add_fileset_file canopen_sdo_client.vhd   VHDL PATH ../rtl/canopen_sdo_client.vhd
+add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.vhd
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd
 add_fileset_file omni_engine.vhd          VHDL PATH ../rtl/omni_engine.vhd
@@ -81,6 +82,7 @@ add_fileset_file canopen_pkg.vhd          VHDL PATH ../rtl/canopen_pkg.vhd
 add_fileset_file canopen_regs_pkg.vhd     VHDL PATH ../rtl/canopen_regs_pkg.vhd
 add_fileset_file canopen_util_pkg.vhd     VHDL PATH ../rtl/canopen_util_pkg.vhd
 add_fileset_file canopen_sdo_client.vhd   VHDL PATH ../rtl/canopen_sdo_client.vhd
+add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.vhd
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd
 add_fileset_file omni_engine.vhd          VHDL PATH ../rtl/omni_engine.vhd
@@ -224,6 +226,15 @@ set_parameter_property N_RPDO DISPLAY_NAME   "RPDO channels (received by the mas
 set_parameter_property N_RPDO HDL_PARAMETER  true
 add_display_item "CANopen master" N_RPDO PARAMETER
 
+add_parameter N_SDO INTEGER 2
+set_parameter_property N_SDO DEFAULT_VALUE  2
+set_parameter_property N_SDO TYPE           INTEGER
+set_parameter_property N_SDO ALLOWED_RANGES 1:4
+set_parameter_property N_SDO UNITS          None
+set_parameter_property N_SDO DISPLAY_NAME   "SDO client channels (concurrent transfers to different nodes)"
+set_parameter_property N_SDO HDL_PARAMETER  true
+add_display_item "CANopen master" N_SDO PARAMETER
+
 add_parameter CFG_DEPTH INTEGER 64
 set_parameter_property CFG_DEPTH DEFAULT_VALUE  64
 set_parameter_property CFG_DEPTH TYPE           INTEGER
@@ -280,7 +291,7 @@ proc validate {} {
 
 # Values for the Nios II BSP (system.h: <INSTANCE>_<NAME>).
 proc elaborate {} {
-    foreach name {CLK_FREQ_HZ CAN_BITRATE_BPS MAX_NODES EMCY_DEPTH N_TPDO N_RPDO CFG_DEPTH \
+    foreach name {CLK_FREQ_HZ CAN_BITRATE_BPS MAX_NODES EMCY_DEPTH N_TPDO N_RPDO N_SDO CFG_DEPTH \
                   RX_FIFO_DEPTH} {
         set_module_assignment embeddedsw.CMacro.$name [get_parameter_value $name]
     }

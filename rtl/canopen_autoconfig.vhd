@@ -17,8 +17,9 @@
 --   configured and, with start_nodes_i, an NMT start for it is requested. The first failing
 --   entry of a node (server abort, client abort, timeout) stops that node: its remaining
 --   entries are skipped, it is not started, and the failure is reported with node, entry and
---   abort code; the walk continues with the next node. Every wait is bounded by the SDO
---   client's own timeout.
+--   abort code in a failure log (the first 16 failing nodes of the run, read by
+--   index: log_sel_i, 0 = first); the walk continues with the next node. Every wait is bounded
+--   by the SDO client's own timeout.
 -- =================================================================================================
 
 library ieee;
@@ -48,9 +49,10 @@ entity canopen_autoconfig is
         done_o        : out   std_logic;                     -- strobe: table finished
         nodes_ok_o    : out   std_logic_vector(7 downto 0);  -- nodes configured in the last run
         nodes_fail_o  : out   std_logic_vector(7 downto 0);  -- nodes that failed in the last run
-        fail_node_o   : out   std_logic_vector(6 downto 0);  -- first failure: node
-        fail_entry_o  : out   std_logic_vector(7 downto 0);  -- first failure: entry number
-        fail_abort_o  : out   std_logic_vector(31 downto 0); -- first failure: SDO abort code
+        log_sel_i     : in    std_logic_vector(3 downto 0);  -- failure log read index
+        fail_node_o   : out   std_logic_vector(6 downto 0);  -- failure log_sel_i: node (+1)
+        fail_entry_o  : out   std_logic_vector(7 downto 0);  -- failure log_sel_i: entry (+1)
+        fail_abort_o  : out   std_logic_vector(31 downto 0); -- failure log_sel_i: abort (+1)
         ev_fail_o     : out   std_logic;                     -- strobe: a node failed
         -- SDO client (owned by this block while busy_o = '1')
         sdo_req_o       : out   std_logic;                     -- pulse: start a download
@@ -77,6 +79,12 @@ architecture rtl of canopen_autoconfig is
 
     type table_t is array (0 to CFG_DEPTH - 1) of std_logic_vector(entry_w_c - 1 downto 0);
 
+    -- failure log: node(7) & entry(8) & abort code(32) of the k-th failing node of the run
+    constant log_depth_c : positive := 16;
+    constant log_w_c     : natural  := 47;
+
+    type log_t is array (0 to log_depth_c - 1) of std_logic_vector(log_w_c - 1 downto 0);
+
     type state_t is (
         S_IDLE,   -- waiting for start_i
         S_FETCH,  -- table read address applied
@@ -90,6 +98,14 @@ architecture rtl of canopen_autoconfig is
     signal table    : table_t;
     signal rd_addr  : natural range 0 to CFG_DEPTH - 1;
     signal rd_entry : std_logic_vector(entry_w_c - 1 downto 0);
+    -- failure log RAM (synchronous read, no reset), its write port and read data
+    signal log_ram   : log_t;
+    signal log_we    : std_logic;
+    signal log_waddr : natural range 0 to log_depth_c - 1;
+    signal log_wdata : std_logic_vector(log_w_c - 1 downto 0);
+    signal log_rdata : std_logic_vector(log_w_c - 1 downto 0);
+    -- the selected index holds a failure of the last run
+    signal log_valid : std_logic;
     -- walk
     signal state : state_t;
     signal idx   : natural range 0 to CFG_DEPTH;
@@ -100,7 +116,6 @@ architecture rtl of canopen_autoconfig is
     signal have_node : std_logic;
     signal n_ok      : unsigned(7 downto 0);
     signal n_fail    : unsigned(7 downto 0);
-    signal first_set : std_logic;
     -- the end of the table was reached: report done after the last node's NMT start
     signal ending : std_logic;
 
@@ -125,6 +140,23 @@ begin
         end if;
 
     end process table_proc;
+
+    log_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if log_we = '1' then
+                log_ram(log_waddr) <= log_wdata;
+            end if;
+            log_rdata <= log_ram(to_integer(unsigned(log_sel_i)));
+            if unsigned(log_sel_i) < n_fail then
+                log_valid <= '1';
+            else
+                log_valid <= '0';
+            end if;
+        end if;
+
+    end process log_proc;
 
     walk_proc : process (clk_i, rst_n_i) is
 
@@ -168,10 +200,7 @@ begin
             node_fail    <= '0';
             n_ok         <= (others => '0');
             n_fail       <= (others => '0');
-            first_set    <= '0';
-            fail_node_o  <= (others => '0');
-            fail_entry_o <= (others => '0');
-            fail_abort_o <= (others => '0');
+            log_we       <= '0';
             ending       <= '0';
             done_o       <= '0';
             ev_fail_o    <= '0';
@@ -184,24 +213,21 @@ begin
             sdo_req_o    <= '0';
             sdo_buf_we_o <= '0';
             nmt_req_o    <= '0';
+            log_we       <= '0';
 
             case state is
 
                 when S_IDLE =>
 
                     if start_i = '1' then
-                        idx          <= 0;
-                        rd_addr      <= 0;
-                        have_node    <= '0';
-                        node_fail    <= '0';
-                        n_ok         <= (others => '0');
-                        n_fail       <= (others => '0');
-                        first_set    <= '0';
-                        fail_node_o  <= (others => '0');
-                        fail_entry_o <= (others => '0');
-                        fail_abort_o <= (others => '0');
-                        ending       <= '0';
-                        state        <= S_FETCH;
+                        idx       <= 0;
+                        rd_addr   <= 0;
+                        have_node <= '0';
+                        node_fail <= '0';
+                        n_ok      <= (others => '0');
+                        n_fail    <= (others => '0');
+                        ending    <= '0';
+                        state     <= S_FETCH;
                     end if;
 
                 when S_FETCH =>
@@ -248,11 +274,11 @@ begin
                             node_fail <= '1';
                             n_fail    <= n_fail + 1;
                             ev_fail_o <= '1';
-                            if first_set = '0' then
-                                first_set    <= '1';
-                                fail_node_o  <= cur_node;
-                                fail_entry_o <= std_logic_vector(to_unsigned(idx, 8));
-                                fail_abort_o <= sdo_abort_i;
+                            if n_fail < log_depth_c then
+                                log_we    <= '1';
+                                log_waddr <= to_integer(n_fail(3 downto 0));
+                                log_wdata <= cur_node & std_logic_vector(to_unsigned(idx, 8))
+                                             & sdo_abort_i;
                             end if;
                         end if;
                         idx     <= idx + 1;
@@ -287,5 +313,12 @@ begin
     sdo_sub_o       <= cur(39 downto 32);
     sdo_buf_wdata_o <= cur(31 downto 0);
     nmt_node_o      <= cur_node;
+    -- failure log_sel_i of the last run, 0 when the run had fewer failures
+    fail_node_o  <= log_rdata(46 downto 40) when log_valid = '1' else
+                    (others => '0');
+    fail_entry_o <= log_rdata(39 downto 32) when log_valid = '1' else
+                    (others => '0');
+    fail_abort_o <= log_rdata(31 downto 0) when log_valid = '1' else
+                    (others => '0');
 
 end architecture rtl;

@@ -9,11 +9,13 @@
 -- Purpose:
 --   The software view of the CANopen master (map: docs/register_map.md, generated with
 --   canopen_regs_pkg by scripts/regmap.py). It holds the configuration registers (SYNC, node
---   supervision slots, SDO object and timeout), the interrupt flags and enables, and eleven
---   32-bit saturating event counters; it turns writes into one-cycle command strobes (NMT,
---   SDO start, re-init, clear, EMCY pop) with their fields, shows the status inputs of the
---   other blocks, and passes the SDO_BUF window through to the SDO client's buffer RAM and the
---   PDO_WIN window (C0h..FFh) to the PDO engine's register port.
+--   supervision slots, SDO channel select, object and timeout), the interrupt flags and
+--   enables, and eleven 32-bit saturating event counters; it turns writes into one-cycle
+--   command strobes (NMT, SDO start, re-init, clear, EMCY pop) with their fields, shows the
+--   status inputs of the other blocks, and passes the SDO_BUF window through to the buffer RAM
+--   of the selected SDO channel and the PDO_WIN window (C0h..FFh) to the PDO engine's register
+--   port. SDO_CMD.DONE is kept per channel (set by that channel's done event, cleared by the
+--   next SDO_CMD write while the channel is selected).
 --   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
 --     avs_read_i by exactly one cycle for every address. SDO_BUF reads drive sdo_buf_addr_o in
 --     the read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in the next one.
@@ -41,6 +43,7 @@ library work;
 entity canopen_host_regs is
     generic (
         MAX_NODES : positive range 1 to 16 := 8; -- supervised node slots (registers per slot)
+        N_SDO     : positive range 1 to 4  := 2; -- SDO client channels (SDO_SEL.CHAN range)
         CNT_BITS  : positive range 2 to 32 := 32 -- event counter width; < 32 only for benches
     );
     port (
@@ -88,6 +91,7 @@ entity canopen_host_regs is
         sdo_timeout_ms_o : out   std_logic_vector(15 downto 0); -- response timeout [ms]
         sdo_cob_req_o    : out   std_logic_vector(10 downto 0); -- request COB-ID, 0 = default
         sdo_cob_resp_o   : out   std_logic_vector(10 downto 0); -- response COB-ID, 0 = default
+        sdo_chan_o       : out   std_logic_vector(1 downto 0);  -- SDO_SEL.CHAN
         -- SDO client buffer port (RAM with registered read data)
         sdo_buf_addr_o  : out   std_logic_vector(7 downto 0);  -- word address
         sdo_buf_we_o    : out   std_logic;                     -- write enable
@@ -144,22 +148,26 @@ entity canopen_host_regs is
         sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code
         sdo_abort_sent_i : in    std_logic;                     -- 1: the client aborted
         sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred
+        sdo_refused_i    : in    std_logic;                     -- sticky: last request refused
+        sdo_chan_busy_i  : in    std_logic_vector(3 downto 0);  -- busy, per channel
         -- automatic configuration status
         acfg_busy_i       : in    std_logic;                     -- list running
+        acfg_refused_i    : in    std_logic;                     -- sticky: START refused
         acfg_nodes_ok_i   : in    std_logic_vector(7 downto 0);  -- nodes configured
         acfg_nodes_fail_i : in    std_logic_vector(7 downto 0);  -- nodes failed
-        acfg_fail_node_i  : in    std_logic_vector(6 downto 0);  -- first failure: node
-        acfg_fail_entry_i : in    std_logic_vector(7 downto 0);  -- first failure: entry
-        acfg_fail_abort_i : in    std_logic_vector(31 downto 0); -- first failure: abort code
+        acfg_fail_node_i  : in    std_logic_vector(6 downto 0);  -- selected failure: node
+        acfg_fail_entry_i : in    std_logic_vector(7 downto 0);  -- selected failure: entry
+        acfg_fail_abort_i : in    std_logic_vector(31 downto 0); -- failure: abort code
+        acfg_fail_sel_o   : out   std_logic_vector(3 downto 0);  -- ACFG_FAIL_SEL.INDEX
         -- interrupt events (one-cycle strobes)
-        ev_node_i        : in    std_logic; -- node event
-        ev_emcy_i        : in    std_logic; -- EMCY received
-        ev_sdo_done_i    : in    std_logic; -- SDO transfer finished
-        ev_can_error_i   : in    std_logic; -- CAN controller error
-        ev_sync_i        : in    std_logic; -- SYNC sent
-        ev_frame_error_i : in    std_logic; -- unexpected or malformed frame
-        ev_init_i        : in    std_logic; -- initialisation done or failed
-        ev_acfg_done_i   : in    std_logic; -- configuration list finished
+        ev_node_i        : in    std_logic;                    -- node event
+        ev_emcy_i        : in    std_logic;                    -- EMCY received
+        ev_sdo_done_i    : in    std_logic_vector(3 downto 0); -- SDO channel c finished
+        ev_can_error_i   : in    std_logic;                    -- CAN controller error
+        ev_sync_i        : in    std_logic;                    -- SYNC sent
+        ev_frame_error_i : in    std_logic;                    -- unexpected or malformed frame
+        ev_init_i        : in    std_logic;                    -- initialisation done or failed
+        ev_acfg_done_i   : in    std_logic;                    -- configuration list finished
         -- counter increments (one-cycle strobes)
         cnt_rx_frame_i    : in    std_logic;                    -- frame received
         cnt_tx_frame_i    : in    std_logic;                    -- frame sent
@@ -292,6 +300,8 @@ architecture rtl of canopen_host_regs is
     signal sdo_timeout    : std_logic_vector(15 downto 0);
     signal sdo_cob_req    : std_logic_vector(10 downto 0);
     signal sdo_cob_resp   : std_logic_vector(10 downto 0);
+    signal sdo_chan       : std_logic_vector(1 downto 0);
+    signal acfg_fail_sel  : std_logic_vector(3 downto 0);
     signal acfg_nodes     : std_logic;
     signal acfg_entry     : unsigned(7 downto 0);
     signal acfg_node      : std_logic_vector(6 downto 0);
@@ -299,9 +309,11 @@ architecture rtl of canopen_host_regs is
     signal acfg_index     : std_logic_vector(15 downto 0);
     signal acfg_sub       : std_logic_vector(7 downto 0);
 
-    -- interrupt flags (W1C) and the sticky SDO done flag
+    -- interrupt flags (W1C) and the sticky SDO done flag of each channel
     signal irq_status : std_logic_vector(irq_bits_c - 1 downto 0);
-    signal sdo_done   : std_logic;
+    signal sdo_done   : std_logic_vector(3 downto 0);
+    -- SDO_SEL.CHAN as an index
+    signal sdo_sel : natural range 0 to 3;
     -- sticky: the configuration list finished, cleared by the next ACFG_CTRL.START
     signal acfg_done : std_logic;
 
@@ -331,6 +343,8 @@ begin
 
     wr_ones  <= avs_writedata_i and be_bits;
     wr_merge <= wr_ones or (rd_mux and not be_bits);
+
+    sdo_sel <= to_integer(unsigned(sdo_chan));
 
     buf_sel <= '1' when addr_is(avs_address_i(7 downto buf_bits_c), buf_win_c) else
                '0';
@@ -369,7 +383,9 @@ begin
             sdo_timeout    <= SDO_TIMEOUT_MS_RESET_C(sdo_timeout'range);
             sdo_cob_req    <= (others => '0');
             sdo_cob_resp   <= (others => '0');
-            sdo_done       <= '0';
+            sdo_chan       <= (others => '0');
+            acfg_fail_sel  <= (others => '0');
+            sdo_done       <= (others => '0');
             acfg_nodes     <= '0';
             acfg_entry     <= (others => '0');
             acfg_node      <= (others => '0');
@@ -400,7 +416,7 @@ begin
             ev_v                           := (others => '0');
             ev_v(IRQ_STATUS_NODE_C)        := ev_node_i;
             ev_v(IRQ_STATUS_EMCY_C)        := ev_emcy_i;
-            ev_v(IRQ_STATUS_SDO_DONE_C)    := ev_sdo_done_i;
+            ev_v(IRQ_STATUS_SDO_DONE_C)    := or ev_sdo_done_i;
             ev_v(IRQ_STATUS_CAN_ERROR_C)   := ev_can_error_i;
             ev_v(IRQ_STATUS_SYNC_C)        := ev_sync_i;
             ev_v(IRQ_STATUS_FRAME_ERROR_C) := ev_frame_error_i;
@@ -412,10 +428,8 @@ begin
                 irq_status <= irq_status or ev_v;
             end if;
 
-            -- SDO done: set by the done event, cleared by the next start
-            if ev_sdo_done_i = '1' then
-                sdo_done <= '1';
-            end if;
+            -- SDO done per channel: set by its done event, cleared by the next SDO_CMD write
+            sdo_done <= sdo_done or ev_sdo_done_i;
             if ev_acfg_done_i = '1' then
                 acfg_done <= '1';
             end if;
@@ -456,7 +470,25 @@ begin
                 end if;
                 if addr_is(avs_address_i, REG_SDO_CMD_C) then
                     sdo_req_o <= '1';
-                    sdo_done  <= '0';
+
+                    for c in 0 to 3 loop
+
+                        if sdo_sel = c then
+                            sdo_done(c) <= ev_sdo_done_i(c);
+                        end if;
+
+                    end loop;
+
+                end if;
+                -- a channel number the core does not have is ignored
+                if addr_is(avs_address_i, REG_SDO_SEL_C)
+                   and to_integer(unsigned(wr_merge(SDO_SEL_CHAN_HI_C downto
+                                                       SDO_SEL_CHAN_LO_C))) < N_SDO then
+                    sdo_chan <= wr_merge(SDO_SEL_CHAN_HI_C downto SDO_SEL_CHAN_LO_C);
+                end if;
+                if addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) then
+                    acfg_fail_sel <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto
+                                              ACFG_FAIL_SEL_INDEX_LO_C);
                 end if;
                 if addr_is(avs_address_i, REG_SDO_TIMEOUT_MS_C) then
                     sdo_timeout <= wr_merge(SDO_TIMEOUT_MS_VALUE_HI_C downto
@@ -668,8 +700,8 @@ begin
             at(sdo_index, SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
             or at(sdo_subindex, SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C));
         put(REG_SDO_CMD_C,
-            at(sdo_busy_i, SDO_CMD_BUSY_C) or at(sdo_done, SDO_CMD_DONE_C)
-            or at(sdo_error_i, SDO_CMD_ERROR_C)
+            at(sdo_busy_i, SDO_CMD_BUSY_C) or at(sdo_done(sdo_sel), SDO_CMD_DONE_C)
+            or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C)
             or at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
             or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C));
         put(REG_SDO_ABORT_C, sdo_abort_code_i);
@@ -678,10 +710,17 @@ begin
         put(REG_SDO_COB_C,
             at(sdo_cob_req, SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
             or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
+        put(REG_SDO_SEL_C,
+            at(sdo_chan, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C)
+            or at(sdo_done, SDO_SEL_DONE_HI_C, SDO_SEL_DONE_LO_C)
+            or at(sdo_chan_busy_i, SDO_SEL_BUSY_HI_C, SDO_SEL_BUSY_LO_C)
+            or at(std_logic_vector(to_unsigned(N_SDO, 3)), SDO_SEL_CHANNELS_HI_C,
+                     SDO_SEL_CHANNELS_LO_C));
 
         put(REG_ACFG_CTRL_C, at(acfg_nodes, ACFG_CTRL_START_NODES_C));
         put(REG_ACFG_STATUS_C,
             at(acfg_busy_i, ACFG_STATUS_BUSY_C) or at(acfg_done, ACFG_STATUS_DONE_C)
+            or at(acfg_refused_i, ACFG_STATUS_REFUSED_C)
             or at(acfg_nodes_ok_i, ACFG_STATUS_NODES_OK_HI_C, ACFG_STATUS_NODES_OK_LO_C)
             or at(acfg_nodes_fail_i, ACFG_STATUS_NODES_FAIL_HI_C, ACFG_STATUS_NODES_FAIL_LO_C));
         put(REG_ACFG_FAIL_C,
@@ -695,6 +734,8 @@ begin
         put(REG_ACFG_OBJ_C,
             at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
             or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
+        put(REG_ACFG_FAIL_SEL_C,
+            at(acfg_fail_sel, ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C));
 
         rd_mux <= v;
 
@@ -777,10 +818,17 @@ begin
     sdo_timeout_ms_o         <= sdo_timeout;
     sdo_cob_req_o            <= sdo_cob_req;
     sdo_cob_resp_o           <= sdo_cob_resp;
-    acfg_start_nodes_o       <= acfg_nodes;
-    acfg_tbl_node_o          <= acfg_node;
-    acfg_tbl_index_o         <= acfg_index;
-    acfg_tbl_sub_o           <= acfg_sub;
-    acfg_tbl_size_o          <= acfg_size;
+    sdo_chan_o               <= sdo_chan;
+    -- the failure log's read address follows a write at once, so a read in the next cycle
+    -- already shows the selected failure (the log RAM registers its read data)
+    acfg_fail_sel_o    <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto ACFG_FAIL_SEL_INDEX_LO_C)
+                          when avs_write_i = '1'
+                               and addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) else
+                          acfg_fail_sel;
+    acfg_start_nodes_o <= acfg_nodes;
+    acfg_tbl_node_o    <= acfg_node;
+    acfg_tbl_index_o   <= acfg_index;
+    acfg_tbl_sub_o     <= acfg_sub;
+    acfg_tbl_size_o    <= acfg_size;
 
 end architecture rtl;

@@ -10,9 +10,10 @@
 --   * canopen_host_regs: Avalon-MM slave and interrupt (register map: docs/register_map.md).
 --   * canopen_master_fsm: the scheduler (St0..St13, docs/fsm.md). Every condition it sees is
 --     computed here; every action it asks for (its Moore state outputs) is carried out here.
---   * canopen_sdo_client (St6/St9), canopen_node_monitor (St7/St10: heartbeat, guarding,
---     boot-up, EMCY), canopen_autoconfig (the SDO configuration list; owns the SDO client while
---     it runs, its NMT starts wait in their own register and go out in St10).
+--   * canopen_sdo_channels (St6/St9: N_SDO SDO clients, transfers to different nodes
+--     interleave), canopen_node_monitor (St7/St10: heartbeat, guarding, boot-up, EMCY),
+--     canopen_autoconfig (the SDO configuration list; owns SDO channel 0 while it runs, its NMT
+--     starts wait in their own register and go out in St10).
 --   * Datapath (this file): timebase (us/ms), SYNC producer, Receive_Data register and COB-ID
 --     classifier (St3/St4), generation-source selection and Transmit_Data with the TX buffer
 --     plan (St8..St11), the controller request (St12), error latch (St13), state watchdog
@@ -39,6 +40,7 @@ entity canopen_master_core is
         MAX_NODES         : positive range 1 to 16  := 8;          -- monitored node slots
         EMCY_DEPTH        : positive range 2 to 64  := 8;          -- EMCY FIFO entries
         SDO_BUF_BYTES     : positive                := 256;        -- SDO transfer buffer [bytes]
+        N_SDO             : positive range 1 to 4   := 2;          -- SDO client channels
         N_TPDO            : positive range 1 to 32  := 8;          -- PDO channels sent
         N_RPDO            : positive range 1 to 32  := 8;          -- PDO channels received
         CFG_DEPTH         : positive range 2 to 256 := 64;         -- configuration list entries
@@ -166,6 +168,8 @@ architecture rtl of canopen_master_core is
     signal sdo_buf_we     : std_logic;
     signal sdo_buf_wdata  : std_logic_vector(31 downto 0);
     signal sdo_buf_rdata  : std_logic_vector(31 downto 0);
+    signal sdo_chan       : std_logic_vector(1 downto 0);
+    signal acfg_fail_sel  : std_logic_vector(3 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
     -- FSM interface
@@ -262,7 +266,6 @@ architecture rtl of canopen_master_core is
     -- Service blocks
     -- ---------------------------------------------------------------------------------------------
     signal sdo_busy       : std_logic;
-    signal sdo_done       : std_logic;
     signal sdo_error      : std_logic;
     signal sdo_abort_sent : std_logic;
     signal sdo_abort_code : std_logic_vector(31 downto 0);
@@ -275,46 +278,50 @@ architecture rtl of canopen_master_core is
     signal sdo_rx_done    : std_logic;
     signal sdo_rx_reply   : std_logic;
     signal sdo_rx_unexp   : std_logic;
-
-    -- SDO client request and buffer port: the host's, or the configuration list's while it runs
-    signal cli_req       : std_logic;
-    signal cli_upload    : std_logic;
-    signal cli_node      : std_logic_vector(6 downto 0);
-    signal cli_index     : std_logic_vector(15 downto 0);
-    signal cli_subindex  : std_logic_vector(7 downto 0);
-    signal cli_size      : std_logic_vector(10 downto 0);
-    signal cli_buf_addr  : std_logic_vector(7 downto 0);
-    signal cli_buf_we    : std_logic;
-    signal cli_buf_wdata : std_logic_vector(31 downto 0);
+    -- SDO channels: the received frame carries a running transfer's response COB-ID
+    signal sdo_rx_match : std_logic;
+    signal sdo_refused  : std_logic;
+    -- per channel (bit c): busy, host transfer done
+    signal sdo_ch_busy : std_logic_vector(3 downto 0);
+    signal sdo_ch_done : std_logic_vector(3 downto 0);
+    -- one strobe per aborted transfer (channels ending together are counted one by one)
+    signal sdo_cnt_abort : std_logic;
+    -- channel 0 as seen by the configuration list
+    signal sdo_own_idle  : std_logic;
+    signal sdo_own_done  : std_logic;
+    signal sdo_own_error : std_logic;
+    signal sdo_own_abort : std_logic_vector(31 downto 0);
 
     -- automatic configuration (canopen_autoconfig)
     signal acfg_start       : std_logic;
     signal acfg_start_nodes : std_logic;
     signal acfg_start_pend  : std_logic;
     signal acfg_run         : std_logic;
-    signal acfg_busy        : std_logic;
-    signal acfg_done        : std_logic;
-    signal acfg_tbl_we      : std_logic;
-    signal acfg_tbl_addr    : std_logic_vector(7 downto 0);
-    signal acfg_tbl_node    : std_logic_vector(6 downto 0);
-    signal acfg_tbl_index   : std_logic_vector(15 downto 0);
-    signal acfg_tbl_sub     : std_logic_vector(7 downto 0);
-    signal acfg_tbl_size    : std_logic_vector(2 downto 0);
-    signal acfg_tbl_value   : std_logic_vector(31 downto 0);
-    signal acfg_nodes_ok    : std_logic_vector(7 downto 0);
-    signal acfg_nodes_fail  : std_logic_vector(7 downto 0);
-    signal acfg_fail_node   : std_logic_vector(6 downto 0);
-    signal acfg_fail_entry  : std_logic_vector(7 downto 0);
-    signal acfg_fail_abort  : std_logic_vector(31 downto 0);
-    signal acfg_sdo_req     : std_logic;
-    signal acfg_sdo_node    : std_logic_vector(6 downto 0);
-    signal acfg_sdo_index   : std_logic_vector(15 downto 0);
-    signal acfg_sdo_sub     : std_logic_vector(7 downto 0);
-    signal acfg_sdo_size    : std_logic_vector(10 downto 0);
-    signal acfg_buf_we      : std_logic;
-    signal acfg_buf_wdata   : std_logic_vector(31 downto 0);
-    signal acfg_nmt_req     : std_logic;
-    signal acfg_nmt_node    : std_logic_vector(6 downto 0);
+    -- sticky: the last ACFG_CTRL.START was refused (list running, or Omni-ID mode)
+    signal acfg_refused    : std_logic;
+    signal acfg_busy       : std_logic;
+    signal acfg_done       : std_logic;
+    signal acfg_tbl_we     : std_logic;
+    signal acfg_tbl_addr   : std_logic_vector(7 downto 0);
+    signal acfg_tbl_node   : std_logic_vector(6 downto 0);
+    signal acfg_tbl_index  : std_logic_vector(15 downto 0);
+    signal acfg_tbl_sub    : std_logic_vector(7 downto 0);
+    signal acfg_tbl_size   : std_logic_vector(2 downto 0);
+    signal acfg_tbl_value  : std_logic_vector(31 downto 0);
+    signal acfg_nodes_ok   : std_logic_vector(7 downto 0);
+    signal acfg_nodes_fail : std_logic_vector(7 downto 0);
+    signal acfg_fail_node  : std_logic_vector(6 downto 0);
+    signal acfg_fail_entry : std_logic_vector(7 downto 0);
+    signal acfg_fail_abort : std_logic_vector(31 downto 0);
+    signal acfg_sdo_req    : std_logic;
+    signal acfg_sdo_node   : std_logic_vector(6 downto 0);
+    signal acfg_sdo_index  : std_logic_vector(15 downto 0);
+    signal acfg_sdo_sub    : std_logic_vector(7 downto 0);
+    signal acfg_sdo_size   : std_logic_vector(10 downto 0);
+    signal acfg_buf_we     : std_logic;
+    signal acfg_buf_wdata  : std_logic_vector(31 downto 0);
+    signal acfg_nmt_req    : std_logic;
+    signal acfg_nmt_node   : std_logic_vector(6 downto 0);
     -- its NMT start waits here (apart from the host's NMT command, so neither is lost)
     signal acfg_nmt_pending : std_logic;
     signal acfg_nmt_cmd     : std_logic_vector(6 downto 0);
@@ -491,12 +498,13 @@ begin
             if fc = FC_TPDO1_C or fc = FC_TPDO2_C or fc = FC_TPDO3_C or fc = FC_TPDO4_C
                or fc = FC_RPDO1_C or fc = FC_RPDO2_C or fc = FC_RPDO3_C or fc = FC_RPDO4_C then
                 cls_pdo <= '1';
-            elsif fc = FC_SDO_TX_C or rx_frame.id = sdo_cob_resp then
+            elsif fc = FC_SDO_TX_C or sdo_rx_match = '1' then
                 cls_sdo <= '1';
             elsif fc = FC_NMT_EC_C or fc = FC_SYNC_EMCY_C then
                 cls_nmt <= '1';
             end if;
-        elsif rx_frame.id = sdo_cob_resp and sdo_cob_resp /= "00000000000" then
+        elsif sdo_rx_match = '1' then
+            -- a configured response COB-ID outside 580h..5FFh of a running transfer
             cls_sdo <= '1';
         end if;
 
@@ -903,46 +911,64 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Services
     -- ---------------------------------------------------------------------------------------------
-    sdo_inst : entity work.canopen_sdo_client
+    sdo_inst : entity work.canopen_sdo_channels
         generic map (
+            N_SDO     => N_SDO,
             BUF_BYTES => SDO_BUF_BYTES
         )
         port map (
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
             tick_ms_i       => tick_ms,
-            req_valid_i     => cli_req,
-            req_upload_i    => cli_upload,
-            req_node_i      => cli_node,
-            req_index_i     => cli_index,
-            req_subindex_i  => cli_subindex,
-            req_size_i      => cli_size,
-            cob_req_i       => sdo_cob_req,
-            cob_resp_i      => sdo_cob_resp,
+            enable_i        => not omni_en,
+            host_chan_i     => sdo_chan,
+            host_req_i      => sdo_req,
+            host_upload_i   => sdo_upload,
+            host_node_i     => sdo_node,
+            host_index_i    => sdo_index,
+            host_sub_i      => sdo_subindex,
+            host_size_i     => sdo_size,
+            host_cob_req_i  => sdo_cob_req,
+            host_cob_rsp_i  => sdo_cob_resp,
             timeout_ms_i    => sdo_timeout_ms,
+            buf_addr_i      => sdo_buf_addr,
+            buf_we_i        => sdo_buf_we,
+            buf_wdata_i     => sdo_buf_wdata,
+            buf_rdata_o     => sdo_buf_rdata,
             busy_o          => sdo_busy,
-            done_o          => sdo_done,
             error_o         => sdo_error,
             abort_code_o    => sdo_abort_code,
             abort_sent_o    => sdo_abort_sent,
             size_o          => sdo_xfer_size,
-            buf_addr_i      => cli_buf_addr,
-            buf_we_i        => cli_buf_we,
-            buf_wdata_i     => cli_buf_wdata,
-            buf_rdata_o     => sdo_buf_rdata,
+            refused_o       => sdo_refused,
+            chan_busy_o     => sdo_ch_busy,
+            chan_done_o     => sdo_ch_done,
+            cnt_abort_o     => sdo_cnt_abort,
+            own_i           => acfg_run,
+            own_req_i       => acfg_sdo_req,
+            own_node_i      => acfg_sdo_node,
+            own_index_i     => acfg_sdo_index,
+            own_sub_i       => acfg_sdo_sub,
+            own_size_i      => acfg_sdo_size,
+            own_buf_we_i    => acfg_buf_we,
+            own_buf_data_i  => acfg_buf_wdata,
+            own_idle_o      => sdo_own_idle,
+            own_done_o      => sdo_own_done,
+            own_error_o     => sdo_own_error,
+            own_abort_o     => sdo_own_abort,
             tx_req_o        => sdo_tx_req,
             tx_id_o         => sdo_tx_id,
             tx_dlc_o        => sdo_tx_dlc,
             tx_data_o       => sdo_tx_data,
             tx_ack_i        => sdo_tx_ack,
+            rx_match_o      => sdo_rx_match,
             rx_valid_i      => enter_sdo,
             rx_id_i         => rx_frame.id,
             rx_dlc_i        => rx_frame.dlc,
             rx_data_i       => rx_frame.data,
             rx_done_o       => sdo_rx_done,
             rx_reply_o      => sdo_rx_reply,
-            rx_unexpected_o => sdo_rx_unexp,
-            state_o         => open
+            rx_unexpected_o => sdo_rx_unexp
         );
 
     monitor_inst : entity work.canopen_node_monitor
@@ -1126,45 +1152,35 @@ begin
     -- Automatic configuration: the SDO list run before NMT start (owns the SDO client while busy)
     -- ---------------------------------------------------------------------------------------------
 
-    -- ACFG_CTRL.START waits until a host transfer already running has ended; from then until the
-    -- list is finished (acfg_run) the client's request and buffer port belong to the list, host
-    -- requests are ignored (SDO_CMD.BUSY reads 1) and its done strobes do not reach the host.
-    -- A START while the list runs is ignored.
+    -- ACFG_CTRL.START waits until a host transfer already running on SDO channel 0 has ended;
+    -- from then until the list is finished (acfg_run) channel 0 belongs to the list: host
+    -- requests on it are refused (SDO_CMD.REFUSED, its BUSY reads 1) and its done strobes do
+    -- not reach the host. The other channels stay the host's. A START while the list runs (or in
+    -- Omni-ID mode) is refused: nothing starts, ACFG_STATUS.REFUSED is set.
     acfg_start_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
             acfg_start_pend <= '0';
+            acfg_refused    <= '0';
         elsif rising_edge(clk_i) then
-            if acfg_start = '1' and acfg_busy = '0' and omni_en = '0' then
-                acfg_start_pend <= '1';
-            elsif sdo_busy = '0' and acfg_busy = '0' then
+            -- the pending start is handed to the list (start_i below) when channel 0 is idle
+            if acfg_start_pend = '1' and sdo_own_idle = '1' and acfg_busy = '0' then
                 acfg_start_pend <= '0';
+            end if;
+            if acfg_start = '1' then
+                if acfg_busy = '0' and acfg_start_pend = '0' and omni_en = '0' then
+                    acfg_start_pend <= '1';
+                    acfg_refused    <= '0';
+                else
+                    acfg_refused <= '1';
+                end if;
             end if;
         end if;
 
     end process acfg_start_proc;
 
     acfg_run <= acfg_busy or acfg_start_pend;
-
-    cli_req       <= acfg_sdo_req when acfg_run = '1' else
-                     sdo_req and not omni_en;
-    cli_upload    <= '0' when acfg_run = '1' else
-                     sdo_upload;
-    cli_node      <= acfg_sdo_node when acfg_run = '1' else
-                     sdo_node;
-    cli_index     <= acfg_sdo_index when acfg_run = '1' else
-                     sdo_index;
-    cli_subindex  <= acfg_sdo_sub when acfg_run = '1' else
-                     sdo_subindex;
-    cli_size      <= acfg_sdo_size when acfg_run = '1' else
-                     sdo_size;
-    cli_buf_addr  <= (others => '0') when acfg_run = '1' else
-                     sdo_buf_addr;
-    cli_buf_we    <= acfg_buf_we when acfg_run = '1' else
-                     sdo_buf_we;
-    cli_buf_wdata <= acfg_buf_wdata when acfg_run = '1' else
-                     sdo_buf_wdata;
 
     acfg_inst : entity work.canopen_autoconfig
         generic map (
@@ -1180,12 +1196,13 @@ begin
             tbl_sub_i       => acfg_tbl_sub,
             tbl_size_i      => acfg_tbl_size,
             tbl_value_i     => acfg_tbl_value,
-            start_i         => acfg_start_pend and not sdo_busy and not acfg_busy,
+            start_i         => acfg_start_pend and sdo_own_idle and not acfg_busy,
             start_nodes_i   => acfg_start_nodes,
             busy_o          => acfg_busy,
             done_o          => acfg_done,
             nodes_ok_o      => acfg_nodes_ok,
             nodes_fail_o    => acfg_nodes_fail,
+            log_sel_i       => acfg_fail_sel,
             fail_node_o     => acfg_fail_node,
             fail_entry_o    => acfg_fail_entry,
             fail_abort_o    => acfg_fail_abort,
@@ -1197,9 +1214,9 @@ begin
             sdo_size_o      => acfg_sdo_size,
             sdo_buf_we_o    => acfg_buf_we,
             sdo_buf_wdata_o => acfg_buf_wdata,
-            sdo_done_i      => sdo_done,
-            sdo_error_i     => sdo_error,
-            sdo_abort_i     => sdo_abort_code,
+            sdo_done_i      => sdo_own_done,
+            sdo_error_i     => sdo_own_error,
+            sdo_abort_i     => sdo_own_abort,
             nmt_req_o       => acfg_nmt_req,
             nmt_node_o      => acfg_nmt_node,
             nmt_ready_i     => not acfg_nmt_pending
@@ -1210,7 +1227,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     regs_inst : entity work.canopen_host_regs
         generic map (
-            MAX_NODES => MAX_NODES
+            MAX_NODES => MAX_NODES,
+            N_SDO     => N_SDO
         )
         port map (
             clk_i                    => clk_i,
@@ -1250,6 +1268,7 @@ begin
             sdo_timeout_ms_o         => sdo_timeout_ms,
             sdo_cob_req_o            => sdo_cob_req,
             sdo_cob_resp_o           => sdo_cob_resp,
+            sdo_chan_o               => sdo_chan,
             sdo_buf_addr_o           => sdo_buf_addr,
             sdo_buf_we_o             => sdo_buf_we,
             sdo_buf_wdata_o          => sdo_buf_wdata,
@@ -1291,21 +1310,25 @@ begin
             emcy_node_i              => emcy_node,
             emcy_data_i              => emcy_data,
             emcy_time_i              => emcy_time,
-            sdo_busy_i               => sdo_busy or acfg_run,
+            sdo_busy_i               => sdo_busy,
             sdo_error_i              => sdo_error,
             sdo_abort_code_i         => sdo_abort_code,
             sdo_abort_sent_i         => sdo_abort_sent,
             sdo_size_i               => sdo_xfer_size,
+            sdo_refused_i            => sdo_refused,
+            sdo_chan_busy_i          => sdo_ch_busy,
             sdo_buf_rdata_i          => sdo_buf_rdata,
             acfg_busy_i              => acfg_run,
+            acfg_refused_i           => acfg_refused,
             acfg_nodes_ok_i          => acfg_nodes_ok,
             acfg_nodes_fail_i        => acfg_nodes_fail,
             acfg_fail_node_i         => acfg_fail_node,
             acfg_fail_entry_i        => acfg_fail_entry,
             acfg_fail_abort_i        => acfg_fail_abort,
+            acfg_fail_sel_o          => acfg_fail_sel,
             ev_node_i                => ev_node_any or om_ev,
             ev_emcy_i                => ev_emcy,
-            ev_sdo_done_i            => sdo_done and not acfg_run,
+            ev_sdo_done_i            => sdo_ch_done,
             ev_can_error_i           => ev_can_error,
             ev_sync_i                => sync_fire,
             ev_frame_error_i         => ev_frame_error,
@@ -1317,7 +1340,7 @@ begin
             cnt_malformed_i          => mon_rx_done and mon_rx_malformed,
             cnt_rx_overflow_i        => ctl_rx_overflow_i,
             cnt_tx_error_i           => cnt_tx_error,
-            cnt_sdo_abort_i          => sdo_done and sdo_error,
+            cnt_sdo_abort_i          => sdo_cnt_abort,
             cnt_hb_loss_i            => or ev_lost,
             cnt_guard_err_i          => or ev_toggle,
             cnt_can_error_i          => cnt_can_error,

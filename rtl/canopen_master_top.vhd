@@ -30,6 +30,7 @@ entity canopen_master_top is
         EMCY_DEPTH      : positive range 2 to 64    := 8;          -- EMCY FIFO entries
         N_TPDO          : positive range 1 to 32    := 8;          -- PDO channels sent
         N_RPDO          : positive range 1 to 32    := 8;          -- PDO channels received
+        N_SDO           : positive range 1 to 4     := 2;          -- SDO client channels
         CFG_DEPTH       : positive range 2 to 256   := 64;         -- configuration list entries
         OMNI_ENABLE     : boolean                   := true;       -- build the Omni-ID engine
         RX_FIFO_DEPTH   : positive range 1 to 16    := 4;          -- received frames buffered
@@ -129,6 +130,7 @@ begin
             EMCY_DEPTH      => EMCY_DEPTH,
             N_TPDO          => N_TPDO,
             N_RPDO          => N_RPDO,
+            N_SDO           => N_SDO,
             CFG_DEPTH       => CFG_DEPTH,
             CAN_BITRATE_BPS => CAN_BITRATE_BPS,
             OMNI_ENABLE     => OMNI_ENABLE,

@@ -63,13 +63,15 @@ package canopen_regs_pkg is
     constant REG_SDO_ABORT_C       : natural := 16#72#; -- RO: SDO abort code of the last transfer
     constant REG_SDO_TIMEOUT_MS_C  : natural := 16#73#; -- RW: SDO response timeout
     constant REG_SDO_COB_C         : natural := 16#74#; -- RW: SDO COB-IDs
+    constant REG_SDO_SEL_C         : natural := 16#75#; -- RW + RO
     constant REG_ACFG_CTRL_C       : natural := 16#78#; -- RW + pulse
     constant REG_ACFG_STATUS_C     : natural := 16#79#; -- RO: automatic configuration status
-    constant REG_ACFG_FAIL_C       : natural := 16#7A#; -- RO: first failure of the last run
+    constant REG_ACFG_FAIL_C       : natural := 16#7A#; -- RO
     constant REG_ACFG_ABORT_C      : natural := 16#7B#; -- RO
     constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW
     constant REG_ACFG_OBJ_C        : natural := 16#7D#; -- RW
     constant REG_ACFG_VALUE_C      : natural := 16#7E#; -- WO
+    constant REG_ACFG_FAIL_SEL_C   : natural := 16#7F#; -- RW
 
     -- ---------------------------------------------------------------------------------------------
     -- Per-node registers: slot k (0 .. MAX_NODES - 1) at address + k * REG_NODE_STRIDE_C
@@ -333,6 +335,7 @@ package canopen_regs_pkg is
     constant SDO_CMD_ERROR_C        : natural := 2;  -- RO
     constant SDO_CMD_XFER_SIZE_HI_C : natural := 18; -- RO
     constant SDO_CMD_XFER_SIZE_LO_C : natural := 8;
+    constant SDO_CMD_REFUSED_C      : natural := 30; -- RO
     constant SDO_CMD_ABORT_SENT_C   : natural := 31; -- RO
 
     -- SDO_ABORT
@@ -349,6 +352,16 @@ package canopen_regs_pkg is
     constant SDO_COB_RESPONSE_HI_C : natural := 26; -- RW: server -> client COB-ID, 0 = 580h + node
     constant SDO_COB_RESPONSE_LO_C : natural := 16;
 
+    -- SDO_SEL
+    constant SDO_SEL_CHAN_HI_C     : natural := 1;  -- RW
+    constant SDO_SEL_CHAN_LO_C     : natural := 0;
+    constant SDO_SEL_DONE_HI_C     : natural := 11; -- RO: bit c: SDO_CMD.DONE of channel c
+    constant SDO_SEL_DONE_LO_C     : natural := 8;
+    constant SDO_SEL_BUSY_HI_C     : natural := 19; -- RO: bit c: SDO_CMD.BUSY of channel c
+    constant SDO_SEL_BUSY_LO_C     : natural := 16;
+    constant SDO_SEL_CHANNELS_HI_C : natural := 26; -- RO: number of channels (generic N_SDO)
+    constant SDO_SEL_CHANNELS_LO_C : natural := 24;
+
     -- ACFG_CTRL
     constant ACFG_CTRL_START_C       : natural := 0; -- pulse
     constant ACFG_CTRL_START_NODES_C : natural := 1; -- RW
@@ -356,6 +369,7 @@ package canopen_regs_pkg is
     -- ACFG_STATUS
     constant ACFG_STATUS_BUSY_C          : natural := 0;  -- RO
     constant ACFG_STATUS_DONE_C          : natural := 1;  -- RO
+    constant ACFG_STATUS_REFUSED_C       : natural := 2;  -- RO
     constant ACFG_STATUS_NODES_OK_HI_C   : natural := 15; -- RO
     constant ACFG_STATUS_NODES_OK_LO_C   : natural := 8;
     constant ACFG_STATUS_NODES_FAIL_HI_C : natural := 23; -- RO
@@ -388,6 +402,10 @@ package canopen_regs_pkg is
     -- ACFG_VALUE
     constant ACFG_VALUE_VALUE_HI_C : natural := 31; -- WO
     constant ACFG_VALUE_VALUE_LO_C : natural := 0;
+
+    -- ACFG_FAIL_SEL
+    constant ACFG_FAIL_SEL_INDEX_HI_C : natural := 3; -- RW
+    constant ACFG_FAIL_SEL_INDEX_LO_C : natural := 0;
 
     -- NODE_CFG
     constant NODE_CFG_NODE_ID_HI_C    : natural := 6;  -- RW: node-ID, 0 = slot unused
@@ -651,8 +669,10 @@ package canopen_regs_pkg is
     constant OMNI_ALIVE_ALIVE_LO_C : natural := 0;
 
     -- OMNI_MISSING
-    constant OMNI_MISSING_MISSING_HI_C : natural := 7; -- W1C
+    constant OMNI_MISSING_MISSING_HI_C : natural := 7;  -- W1C
     constant OMNI_MISSING_MISSING_LO_C : natural := 0;
+    constant OMNI_MISSING_NODE_HI_C    : natural := 15; -- RO
+    constant OMNI_MISSING_NODE_LO_C    : natural := 8;
 
     -- OMNI_PMB_INFO
     constant OMNI_PMB_INFO_SENDER_HI_C : natural := 7;  -- RO: byte 0
@@ -716,7 +736,7 @@ package canopen_regs_pkg is
     -- Reset words (registers whose every readable field has one)
     -- ---------------------------------------------------------------------------------------------
     constant ID_RESET_C              : std_logic_vector(31 downto 0) := x"434F3031";
-    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00010001";
+    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00010002";
     constant CTRL_RESET_C            : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_STATUS_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_ENABLE_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
@@ -742,6 +762,7 @@ package canopen_regs_pkg is
     constant ACFG_ENTRY_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
     constant ACFG_OBJ_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
     constant ACFG_VALUE_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
+    constant ACFG_FAIL_SEL_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
     constant NODE_CFG_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
     constant NODE_TIME_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
     constant PDO_SEL_RESET_C         : std_logic_vector(31 downto 0) := x"00000000";

@@ -7,6 +7,7 @@ canopen_pkg.vhd
 canopen_regs_pkg.vhd
 canopen_util_pkg.vhd
 canopen_sdo_client.vhd
+canopen_sdo_channels.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
 omni_engine.vhd

@@ -1480,6 +1480,8 @@ begin
 
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);
+        -- node-ID of the lowest missing slot (0: none)
+        variable miss_node : std_logic_vector(7 downto 0);
 
         procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
         begin
@@ -1559,7 +1561,19 @@ begin
 
         put(off_fbnew_c, at(s_new, N_SLOTS - 1, 0));
         put(off_alive_c, at(alive, N_SLOTS - 1, 0));
-        put(off_miss_c, at(missing, N_SLOTS - 1, 0));
+        miss_node := (others => '0');
+
+        for k in N_SLOTS - 1 downto 0 loop
+
+            if missing(k) = '1' then
+                miss_node := s_node(k);
+            end if;
+
+        end loop;
+
+        put(off_miss_c,
+            at(missing, N_SLOTS - 1, 0)
+            or at(miss_node, OMNI_MISSING_NODE_HI_C, OMNI_MISSING_NODE_LO_C));
         put(off_pmbi_c,
             at(pmb_sender, OMNI_PMB_INFO_SENDER_HI_C, OMNI_PMB_INFO_SENDER_LO_C)
             or at(pmb_type, OMNI_PMB_INFO_TYPE_HI_C, OMNI_PMB_INFO_TYPE_LO_C)

@@ -143,7 +143,7 @@ REGISTERS: tuple[Register, ...] = (
     R("ID", 0x00, "RO", 'identification, "CO01"',
       F("VALUE", "31:0", "RO", 0x434F3031, 'ASCII "CO01"')),
     R("VERSION", 0x01, "RO", "register map version",
-      F("MINOR", "15:0", "RO", 0x0001, "minor version"),
+      F("MINOR", "15:0", "RO", 0x0002, "minor version"),
       F("MAJOR", "31:16", "RO", 0x0001, "major version")),
     R("CTRL", 0x02, "RW + pulse", "control",
       F("SYNC_EN", 0, "RW", 0, "1: the SYNC producer runs (SYNC_PERIOD_US /= 0); in Omni-ID "
@@ -215,7 +215,8 @@ REGISTERS: tuple[Register, ...] = (
     R("SDO_OBJ", 0x70, "RW", "SDO object address",
       F("INDEX", "15:0", "RW", 0, "object index"),
       F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
-    R("SDO_CMD", 0x71, "WO + RO", "SDO command: a write starts a transfer",
+    R("SDO_CMD", 0x71, "WO + RO", "SDO command: a write starts a transfer on channel "
+                                  "SDO_SEL.CHAN",
       F("NODE", "6:0", "WO", None, "server node-ID"),
       F("UPLOAD", 7, "WO", None, "1: upload (read from the node), 0: download"),
       F("SIZE", "18:8", "WO", None, "download: bytes in SDO_BUF to send"),
@@ -223,6 +224,10 @@ REGISTERS: tuple[Register, ...] = (
       F("DONE", 1, "RO", 0, "sticky: set when a transfer ends, cleared by the next start"),
       F("ERROR", 2, "RO", None, "last transfer aborted (SDO_ABORT holds the code)"),
       F("XFER_SIZE", "18:8", "RO", None, "bytes transferred (upload: bytes in SDO_BUF)"),
+      F("REFUSED", 30, "RO", None, "sticky: the last write was refused, nothing sent (channel "
+                                   "busy or owned by the configuration list, another channel "
+                                   "talks to the same node, or Omni-ID mode); cleared by the "
+                                   "next accepted write"),
       F("ABORT_SENT", 31, "RO", None, "1: the master sent the abort, 0: the node did")),
     R("SDO_ABORT", 0x72, "RO", "SDO abort code of the last transfer",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code")),
@@ -231,21 +236,33 @@ REGISTERS: tuple[Register, ...] = (
     R("SDO_COB", 0x74, "RW", "SDO COB-IDs",
       F("REQUEST", "10:0", "RW", 0, "client -> server COB-ID, 0 = 600h + node"),
       F("RESPONSE", "26:16", "RW", 0, "server -> client COB-ID, 0 = 580h + node")),
+    R("SDO_SEL", 0x75, "RW + RO", "SDO channel select: SDO_OBJ..SDO_COB and SDO_BUF show "
+                                  "this channel",
+      F("CHAN", "1:0", "RW", 0, "channel 0 .. CHANNELS - 1 that SDO_CMD, SDO_ABORT and "
+                                "SDO_BUF address (a write of a higher number is ignored); "
+                                "channel 0 belongs to the configuration list while it runs"),
+      F("DONE", "11:8", "RO", 0, "bit c: SDO_CMD.DONE of channel c"),
+      F("BUSY", "19:16", "RO", None, "bit c: SDO_CMD.BUSY of channel c"),
+      F("CHANNELS", "26:24", "RO", None, "number of channels (generic N_SDO)")),
     R("ACFG_CTRL", 0x78, "RW + pulse", "automatic configuration (canopen_autoconfig) control",
       F("START", 0, "pulse", 0, "write 1: run the configuration list from entry 0 (waits for "
-                                "a running host SDO transfer to end)"),
+                                "a running host SDO transfer on channel 0 to end)"),
       F("START_NODES", 1, "RW", 0, "1: send NMT start to each node whose entries all "
                                    "succeeded")),
     R("ACFG_STATUS", 0x79, "RO", "automatic configuration status",
-      F("BUSY", 0, "RO", None, "the list is running (it owns the SDO client: SDO_CMD.BUSY "
-                               "reads 1)"),
+      F("BUSY", 0, "RO", None, "the list is running (it owns SDO channel 0: its "
+                               "SDO_CMD.BUSY reads 1)"),
       F("DONE", 1, "RO", 0, "sticky: the last run finished, cleared by the next START"),
+      F("REFUSED", 2, "RO", None, "sticky: the last START was refused, nothing run (the list "
+                                  "was running, or Omni-ID mode); cleared by the next "
+                                  "accepted START"),
       F("NODES_OK", "15:8", "RO", None, "nodes whose entries all succeeded in the last run"),
       F("NODES_FAIL", "23:16", "RO", None, "nodes stopped by a failing entry in the last run")),
-    R("ACFG_FAIL", 0x7A, "RO", "first failure of the last run",
+    R("ACFG_FAIL", 0x7A, "RO", "failure ACFG_FAIL_SEL.INDEX of the last run (0 = first)",
       F("NODE", "6:0", "RO", None, "node-ID"),
       F("ENTRY", "15:8", "RO", None, "table entry number")),
-    R("ACFG_ABORT", 0x7B, "RO", "first failure of the last run: SDO abort code",
+    R("ACFG_ABORT", 0x7B, "RO", "failure ACFG_FAIL_SEL.INDEX of the last run: SDO abort "
+                                "code",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code (received or sent by the master)")),
     R("ACFG_ENTRY", 0x7C, "RW", "table entry written by the next ACFG_VALUE write",
       F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each ACFG_VALUE "
@@ -257,6 +274,9 @@ REGISTERS: tuple[Register, ...] = (
       F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
     R("ACFG_VALUE", 0x7E, "WO", "value of the table entry; a write stores the whole entry",
       F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame")),
+    R("ACFG_FAIL_SEL", 0x7F, "RW", "which failure of the last run ACFG_FAIL/ACFG_ABORT show",
+      F("INDEX", "3:0", "RW", 0, "k-th failing node of the run, 0 = first; the first 16 "
+                                 "failures are logged (ACFG_STATUS.NODES_FAIL counts all)")),
 )
 
 NODE_GROUP = Group(
@@ -282,8 +302,9 @@ NODE_GROUP = Group(
 )
 
 SDO_BUF = Window("SDO_BUF", 0x80, 64, "RW",
-                 "SDO data buffer, 256 bytes (byte 4w+i of the transfer in bits 8i+7..8i of "
-                 "word w), passed through to the SDO client's buffer port")
+                 "SDO data buffer of channel SDO_SEL.CHAN, 256 bytes (byte 4w+i of the "
+                 "transfer in bits 8i+7..8i of word w), passed through to that SDO client's "
+                 "buffer port")
 
 # ------------------------------------------------------------------------- PDO engine window
 # C0h..FFh is passed through to canopen_pdo_engine (pdo_* port of canopen_host_regs), which
@@ -477,7 +498,8 @@ OMNI_REGISTERS: tuple[Register, ...] = (
       F("ALIVE", "7:0", "RO", None, "bit k: slot k answered (cleared when the next query is "
                                     "sent)")),
     R("OMNI_MISSING", 0xD8, "W1C", "sticky: slots that missed a query window",
-      F("MISSING", "7:0", "W1C", None, "bit k: valid slot k did not answer in time")),
+      F("MISSING", "7:0", "W1C", None, "bit k: valid slot k did not answer in time"),
+      F("NODE", "15:8", "RO", None, "node-ID of the lowest missing slot, 0 = none")),
     R("OMNI_PMB_INFO", 0xD9, "RO + W1C", "parameter mailbox: last fc 111 frame to MASTER_ID",
       F("SENDER", "7:0", "RO", None, "byte 0"),
       F("TYPE", "15:8", "RO", None, "byte 1"),

@@ -19,6 +19,9 @@ from cocotb.triggers import FallingEdge, ReadOnly, RisingEdge, Timer
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.runner import param, run_cocotb
 
+#: failures the block logs per run (ACFG_FAIL_SEL.INDEX range)
+LOG_DEPTH = 16
+
 
 @dataclass(frozen=True)
 class Entry:
@@ -30,8 +33,9 @@ class Entry:
 
 
 def expected(table: list[Entry], fail: dict[int, int], start_nodes: bool):
-    """(downloads, nmt starts, ok count, fail count, first failure) by the documented rule."""
-    downloads, nmt, ok, nfail, first = [], [], 0, 0, None
+    """(downloads, nmt starts, ok count, fail count, failures in order) by the documented
+    rule; a failure is (node, entry, abort code)."""
+    downloads, nmt, ok, nfail, fails = [], [], 0, 0, []
     i, depth = 0, param("CFG_DEPTH")
     while i < depth and i < len(table) and table[i].node != 0:
         node, failed = table[i].node, False
@@ -41,14 +45,13 @@ def expected(table: list[Entry], fail: dict[int, int], start_nodes: bool):
                 if i in fail:
                     failed = True
                     nfail += 1
-                    if first is None:
-                        first = (node, i, fail[i])
+                    fails.append((node, i, fail[i]))
             i += 1
         if not failed:
             ok += 1
             if start_nodes:
                 nmt.append(node)
-    return downloads, nmt, ok, nfail, first
+    return downloads, nmt, ok, nfail, fails
 
 
 class TB:
@@ -57,7 +60,7 @@ class TB:
         start_clock(dut.clk_i, 10_000_000)
         for sig in (dut.tbl_we_i, dut.tbl_addr_i, dut.tbl_node_i, dut.tbl_index_i, dut.tbl_sub_i,
                     dut.tbl_size_i, dut.tbl_value_i, dut.start_i, dut.start_nodes_i,
-                    dut.sdo_done_i, dut.sdo_error_i, dut.sdo_abort_i):
+                    dut.sdo_done_i, dut.sdo_error_i, dut.sdo_abort_i, dut.log_sel_i):
             sig.value = 0
         dut.nmt_ready_i.value = 1
         self.downloads: list[Entry] = []
@@ -130,16 +133,25 @@ class TB:
                 await FallingEdge(dut.clk_i)
                 return n
 
-    def check(self, start_nodes: bool) -> None:
-        dl, nmt, ok, nfail, first = expected(self.table, self.fail, start_nodes)
+    async def check(self, start_nodes: bool) -> None:
+        dl, nmt, ok, nfail, fails = expected(self.table, self.fail, start_nodes)
         assert self.downloads == dl, f"downloads {self.downloads} != {dl}"
         assert self.nmt == nmt, f"NMT starts {self.nmt} != {nmt}"
         dut = self.dut
         assert int(dut.nodes_ok_o.value) == ok and int(dut.nodes_fail_o.value) == nfail
-        if first is not None:
+        # the failure log: the first 16 failures in order, zeros beyond the run's failures
+        logged = fails[:LOG_DEPTH]
+        for k in range(min(len(logged) + 1, LOG_DEPTH)):
+            await FallingEdge(dut.clk_i)
+            dut.log_sel_i.value = k
+            await RisingEdge(dut.clk_i)  # registered read: valid after this edge
+            await ReadOnly()
             got = (int(dut.fail_node_o.value), int(dut.fail_entry_o.value),
                    int(dut.fail_abort_o.value))
-            assert got == first, f"first failure {got} != {first}"
+            want = logged[k] if k < len(logged) else (0, 0, 0)
+            assert got == want, f"failure {k}: {got} != {want}"
+        await FallingEdge(dut.clk_i)
+        dut.log_sel_i.value = 0
         assert dut.busy_o.value == 0
 
 
@@ -167,11 +179,11 @@ async def run_configure_and_start(dut):
     cocotb.start_soon(tb.nmt_path())
     await tb.write_table(network_table(rng, [1, 2, 3, 4]) + [Entry(9, 0x1017, 0, 2, 5)])
     await tb.run(start_nodes=True)
-    tb.check(start_nodes=True)
+    await tb.check(start_nodes=True)
     tb.downloads.clear()
     tb.nmt.clear()
     await tb.run(start_nodes=False)
-    tb.check(start_nodes=False)
+    await tb.check(start_nodes=False)
     await Timer(1, "ns")
 
 
@@ -179,9 +191,10 @@ async def run_configure_and_start(dut):
 async def run_failing_entry_stops_its_node(dut):
     """Purpose: a failing entry stops that node only.
 
-    Verifies: the rest of node 2's entries are skipped, node 2 is not started, the first
-    failure is reported with node, entry number and the abort code; nodes 1, 3, 4 are
-    configured and started; a second failure (node 4) is counted but the first one is kept.
+    Verifies: the rest of node 2's entries are skipped, node 2 is not started, the failure is
+    logged with node, entry number and the abort code (log index 0); nodes 1 and 3 are
+    configured and started; a second failure (node 4) is counted and logged at index 1, the
+    first one kept at index 0.
     """
     tb = TB(dut)
     await reset_active_low(dut.clk_i, dut.rst_n_i)
@@ -193,7 +206,7 @@ async def run_failing_entry_stops_its_node(dut):
     tb.fail = {first_of[2]: 0x06020000, first_of[4]: 0x06010002}
     await tb.write_table(table)
     await tb.run(start_nodes=True)
-    tb.check(start_nodes=True)
+    await tb.check(start_nodes=True)
     assert 2 not in tb.nmt and 4 not in tb.nmt
     await Timer(1, "ns")
 
@@ -212,7 +225,7 @@ async def run_table_edges(dut):
     cocotb.start_soon(tb.nmt_path())
     await tb.write_table([Entry(0, 0, 0, 0, 0)])
     await tb.run(start_nodes=True)
-    tb.check(start_nodes=True)
+    await tb.check(start_nodes=True)
     assert tb.downloads == [] and int(dut.nodes_ok_o.value) == 0
     depth = param("CFG_DEPTH")
     full = [Entry(1 + i // 3, 0x2000 + i, 0, 4, rng.getrandbits(32)) for i in range(depth)]
@@ -226,7 +239,35 @@ async def run_table_edges(dut):
 
     cocotb.start_soon(release())
     await tb.run(start_nodes=True)
-    tb.check(start_nodes=True)
+    await tb.check(start_nodes=True)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_failure_log_depth(dut):
+    """Purpose: the failure log holds the first 16 failures of a run, one per failing node.
+
+    Verifies: 18 nodes whose only entry fails with a code of its own: NODES_FAIL = 18, log
+    indices 0..15 = nodes 1..16 with their entry numbers and codes in order; a second run with
+    only node 5 failing shows it at index 0 and zeros at index 1 (no stale entry of the first
+    run).
+    """
+    tb = TB(dut)
+    await reset_active_low(dut.clk_i, dut.rst_n_i)
+    rng = random.Random(5)
+    cocotb.start_soon(tb.sdo_client(rng))
+    cocotb.start_soon(tb.nmt_path())
+    table = [Entry(n, 0x1017, 0, 2, n) for n in range(1, 19)] + [Entry(0, 0, 0, 0, 0)]
+    tb.fail = {i: 0x0601_0000 + i for i in range(18)}
+    await tb.write_table(table)
+    await tb.run(start_nodes=True)
+    assert int(dut.nodes_fail_o.value) == 18
+    await tb.check(start_nodes=True)
+    tb.downloads.clear()
+    tb.nmt.clear()
+    tb.fail = {4: 0x0602_0000}
+    await tb.run(start_nodes=True)
+    await tb.check(start_nodes=True)
     await Timer(1, "ns")
 
 
@@ -246,4 +287,4 @@ async def run_checker_can_fail(dut):
 @pytest.mark.sim
 def test_canopen_autoconfig(request):
     run_cocotb(toplevel="canopen_autoconfig", module="tb.test_canopen_autoconfig",
-               name=request.node.name, parameters={"CFG_DEPTH": 16})
+               name=request.node.name, parameters={"CFG_DEPTH": 24})

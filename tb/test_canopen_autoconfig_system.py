@@ -17,6 +17,8 @@ from cocotb.triggers import Timer
 from sim_models.canopen_slave import NmtState
 from tb.tblib import regmap as R
 from tb.tblib.drive_config import drive_entries
+from tb.tblib.host_driver import SdoRefused
+from tb.tblib.model_clock import sim_time_ps
 from tb.tblib.runner import run_cocotb
 from tb.tblib.system_tb import SystemTB
 
@@ -67,9 +69,12 @@ async def run_config_list_success(dut):
     object dictionary afterwards (RPDO1 and TPDO1 re-mapped, TPDO1 type 1, 1017h); one SDO
     request per entry and in table order; each drive's NMT start comes after its last SDO
     response and before the next drive's first request; ACFG_STATUS 4 ok / 0 failed, DONE, the
-    CONFIG interrupt flag set but SDO_DONE not (the list's transfers are not the host's);
-    while the list runs SDO_CMD.BUSY reads 1 and a host SDO request is ignored (no frame);
-    afterwards the host's own SDO works again.
+    CONFIG interrupt flag set and SDO_SEL.DONE only for channel 1 (the list's transfers are
+    not the host's);
+    while the list runs channel 0's SDO_CMD.BUSY reads 1 and a host SDO request on channel 0 is
+    refused (SDO_CMD.REFUSED, no frame), while a host upload on channel 1 (node 3's device
+    name, segmented) runs at the same time and succeeds, its frames interleaved on the bus
+    with the list's; afterwards the host's own SDO on channel 0 works again.
     """
     tb = SystemTB(dut)
     await boot(tb)
@@ -80,9 +85,18 @@ async def run_config_list_success(dut):
     await host.acfg_start(start_nodes=True)
     await Timer(50, "us")
     assert (await host.acfg_status())["busy"]
-    assert await host.read("SDO_CMD") & R.SDO_CMD_BUSY, "SDO_CMD.BUSY while the list runs"
-    await host.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=0x1008, SUBINDEX=0))
-    await host.write("SDO_CMD", R.make("SDO_CMD", NODE=4, UPLOAD=1))  # must be ignored
+    assert await host.sdo_command(0) & R.SDO_CMD_BUSY, "SDO_CMD.BUSY while the list runs"
+    try:
+        await host.sdo_upload(4, 0x1008, 0, chan=0)  # channel 0 is the list's: refused
+    except SdoRefused:
+        pass
+    else:
+        raise AssertionError("a host request on channel 0 was accepted while the list ran")
+    assert await host.sdo_command(0) & R.SDO_CMD_REFUSED
+    name = await host.sdo_upload(3, 0x1008, 0, chan=1)  # in parallel with the list
+    assert name == tb.slave(3).read_raw(0x1008, 0), name
+    t_name_done = sim_time_ps()
+    assert (await host.acfg_status())["busy"], "the list ended before the parallel upload"
     t_end_us = 200_000
     while True:
         st = await host.acfg_status()
@@ -93,7 +107,9 @@ async def run_config_list_success(dut):
         assert t_end_us > 0, st
     assert st["nodes_ok"] == 4 and st["nodes_fail"] == 0, st
     irq = await host.irq_status()
-    assert irq & R.IRQ_STATUS_CONFIG and not irq & R.IRQ_STATUS_SDO_DONE, hex(irq)
+    assert irq & R.IRQ_STATUS_CONFIG and irq & R.IRQ_STATUS_SDO_DONE, hex(irq)
+    # SDO_DONE is channel 1's (the host upload); the list's transfers on channel 0 set nothing
+    assert R.get_field("SDO_SEL", "DONE", await host.read("SDO_SEL")) == 0b10
     await tb.wait_for(tb.all_operational, 2_000, 10, "operational")
     await Timer(200, "us")  # the bus records a frame after its intermission
     for s in tb.slaves:
@@ -104,7 +120,8 @@ async def run_config_list_success(dut):
         assert s.read(0x1A00, 0) == 2 and s.read(0x1800, 1) == 0x180 + n
         assert s.read(0x1A00, 1) == 0x6041_0010 and s.read(0x1A00, 2) == 0x6064_0020
         assert s.read(0x1800, 2) == 1 and s.read(0x1017, 0) == 10
-        reqs = sdo_requests(tb, n)
+        # the list's requests: initiate download (ccs 001); node 3 also had the host upload
+        reqs = [r for r in sdo_requests(tb, n) if r[0] & 0xE0 == 0x20]
         assert len(reqs) == len(drive_entries(n)), (n, reqs)
         for req, (_, index, sub, size, value) in zip(reqs, drive_entries(n)):
             assert req[0] == 0x23 | ((4 - size) << 2), req.hex()  # expedited, size indicated
@@ -118,8 +135,14 @@ async def run_config_list_success(dut):
         last_resp = tb.frames(0x580 + n)[-1].t_end_ps
         assert starts[n] > last_resp
         if n < 4:
-            assert starts[n] < tb.frames(0x600 + n + 1)[0].t_start_ps
-    assert all(r[0] != 0x40 for r in sdo_requests(tb, 4)), "the ignored host upload was sent"
+            first_dl = next(r for r in tb.frames(0x600 + n + 1) if r.msg.data[0] & 0xE0 == 0x20)
+            assert starts[n] < first_dl.t_start_ps
+    assert all(r[0] != 0x40 for r in sdo_requests(tb, 4)), "the refused host upload was sent"
+    # channel 1's upload of node 3 interleaved with the list's downloads to node 1/2
+    up = [r for r in tb.frames(0x603) if r.msg.data[0] in (0x40, 0x60, 0x70)]
+    assert up and up[-1].t_end_ps < t_name_done, up
+    lst = [r.t_start_ps for r in tb.frames(0x601) + tb.frames(0x602)]
+    assert any(up[0].t_start_ps < t < up[-1].t_start_ps for t in lst), "no interleaving"
     t0 = tb.frames(0x601)[0].t_start_ps
     t1 = max(starts.values())
     dut._log.info("configuration list: %d entries + 4 NMT starts in %.1f us (%.1f us/entry)",
@@ -136,7 +159,8 @@ async def run_config_list_failures(dut):
     Verifies: node 2's third entry writes an object that does not exist (0602 0000h), node 3's
     second a read-only one (0601 0002h), node 9 is not on the bus (SDO timeout 0504 0000h sent
     by the master); nodes 1 and 4 succeed. ACFG_STATUS: 2 ok, 3 failed; ACFG_FAIL/ACFG_ABORT
-    hold the first failure (node 2, its entry number, 0602 0000h); the entries after a failing
+    hold the first failure (node 2, its entry number, 0602 0000h) and, through ACFG_FAIL_SEL,
+    the second and third (node 3 0601 0002h, node 9 0504 0000h); the entries after a failing
     one are not sent; only nodes 1 and 4 get an NMT start and become operational, 2 and 3 stay
     pre-operational; CNT_SDO_ABORT counts the three failures.
     """
@@ -155,6 +179,10 @@ async def run_config_list_failures(dut):
     assert st["nodes_ok"] == 2 and st["nodes_fail"] == 3, st
     assert st["fail_node"] == 2 and st["fail_entry"] == len(n1) + 2, st
     assert st["fail_abort"] == ABORT_NO_OBJECT, hex(st["fail_abort"])
+    assert await host.acfg_failures() == [
+        (2, len(n1) + 2, ABORT_NO_OBJECT), (3, len(n1) + len(n2) + 1, ABORT_READ_ONLY),
+        (9, len(n1) + len(n2) + len(n3), ABORT_TIMEOUT)]
+    assert await host.acfg_failure(3) == (0, 0, 0)
     assert len(sdo_requests(tb, 2)) == 3 and len(sdo_requests(tb, 3)) == 2
     assert [r[0] for r in sdo_requests(tb, 9)] == [0x2B, 0x80]  # the request, the master's abort
     aborts = {n: bytes(r.msg.data) for n in (2, 3) for r in tb.frames(0x580 + n)

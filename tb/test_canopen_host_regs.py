@@ -42,9 +42,10 @@ STATUS_INPUTS = {
     "time_us_i": 32,
     "tec_i": 8, "rec_i": 8, "eflg_i": 8, "emcy_count_i": 7, "emcy_lost_i": 1, "emcy_node_i": 7,
     "emcy_data_i": 64, "emcy_time_i": 32, "sdo_busy_i": 1, "sdo_error_i": 1,
-    "sdo_abort_code_i": 32, "sdo_abort_sent_i": 1, "sdo_size_i": 11,
-    "acfg_busy_i": 1, "acfg_nodes_ok_i": 8, "acfg_nodes_fail_i": 8, "acfg_fail_node_i": 7,
-    "acfg_fail_entry_i": 8, "acfg_fail_abort_i": 32,
+    "sdo_abort_code_i": 32, "sdo_abort_sent_i": 1, "sdo_size_i": 11, "sdo_refused_i": 1,
+    "sdo_chan_busy_i": 4,
+    "acfg_busy_i": 1, "acfg_refused_i": 1, "acfg_nodes_ok_i": 8, "acfg_nodes_fail_i": 8,
+    "acfg_fail_node_i": 7, "acfg_fail_entry_i": 8, "acfg_fail_abort_i": 32,
 }
 SLOT_INPUTS = {"node_nmt_i": 7, "node_alive_i": 1, "node_lost_i": 1, "node_toggle_i": 1,
                "node_bootup_i": 1, "node_last_i": 32}
@@ -77,18 +78,23 @@ RO_SOURCES = {
     ("SDO_CMD", "XFER_SIZE"): ("sdo_size_i", 0),
     ("SDO_CMD", "ABORT_SENT"): ("sdo_abort_sent_i", 0),
     ("SDO_ABORT", "CODE"): ("sdo_abort_code_i", 0),
+    ("SDO_CMD", "REFUSED"): ("sdo_refused_i", 0), ("SDO_SEL", "BUSY"): ("sdo_chan_busy_i", 0),
     ("NODE_STATUS", "NMT_STATE"): ("node_nmt_i", 0), ("NODE_STATUS", "ALIVE"): ("node_alive_i", 0),
     ("NODE_STATUS", "LOST"): ("node_lost_i", 0),
     ("NODE_STATUS", "TOGGLE_ERR"): ("node_toggle_i", 0),
     ("NODE_STATUS", "BOOTUP"): ("node_bootup_i", 0),
     ("NODE_LAST_MS", "VALUE"): ("node_last_i", 0),
     ("ACFG_STATUS", "BUSY"): ("acfg_busy_i", 0),
+    ("ACFG_STATUS", "REFUSED"): ("acfg_refused_i", 0),
     ("ACFG_STATUS", "NODES_OK"): ("acfg_nodes_ok_i", 0),
     ("ACFG_STATUS", "NODES_FAIL"): ("acfg_nodes_fail_i", 0),
     ("ACFG_FAIL", "NODE"): ("acfg_fail_node_i", 0),
     ("ACFG_FAIL", "ENTRY"): ("acfg_fail_entry_i", 0),
     ("ACFG_ABORT", "CODE"): ("acfg_fail_abort_i", 0),
 }
+
+#: RO fields that show a generic of the block, not an input
+GENERIC_RO = {("SDO_SEL", "CHANNELS"): "N_SDO"}
 
 #: RW fields -> output port (slot fields: slice slot * width of the port)
 RW_OUTPUTS = {
@@ -106,6 +112,7 @@ RW_OUTPUTS = {
     ("ACFG_CTRL", "START_NODES"): "acfg_start_nodes_o",
     ("ACFG_ENTRY", "NODE"): "acfg_tbl_node_o", ("ACFG_ENTRY", "SIZE"): "acfg_tbl_size_o",
     ("ACFG_OBJ", "INDEX"): "acfg_tbl_index_o", ("ACFG_OBJ", "SUBINDEX"): "acfg_tbl_sub_o",
+    ("SDO_SEL", "CHAN"): "sdo_chan_o", ("ACFG_FAIL_SEL", "INDEX"): "acfg_fail_sel_o",
 }
 
 #: pulse outputs and the output fields sampled with them
@@ -117,6 +124,12 @@ STROBES = {
     "acfg_tbl_we_o": ("acfg_tbl_addr_o", "acfg_tbl_node_o", "acfg_tbl_index_o",
                       "acfg_tbl_sub_o", "acfg_tbl_size_o", "acfg_tbl_value_o"),
 }
+
+
+def generic_ro_word(reg: str) -> int:
+    """The fields of ``reg`` that show a generic (GENERIC_RO), placed."""
+    return sum(param(g, 2) << R.REGISTERS[reg].fields[f].lo
+               for (r, f), g in GENERIC_RO.items() if r == reg)
 
 
 def field_info(reg: str, field: str) -> R.FieldInfo:
@@ -143,6 +156,7 @@ class TB:
         self.dut = dut
         self.max_nodes = param("MAX_NODES")
         self.cnt_bits = param("CNT_BITS", 32)
+        self.n_sdo = param("N_SDO", 2)
         start_clock(dut.clk_i, CLK_HZ)
         dut.rst_n_i.value = 0
         for name in ("avs_read_i", "avs_write_i", "avs_writedata_i", "avs_byteenable_i",
@@ -303,6 +317,18 @@ class TB:
     def input_width(self, name: str) -> int:
         return STATUS_INPUTS.get(name) or SLOT_INPUTS[name] * self.max_nodes
 
+    def random_rw(self, name: str, garbage: bool = False) -> int:
+        """A random value for the RW fields of ``name`` (with garbage in the undefined bits
+        when asked); SDO_SEL.CHAN stays below N_SDO (a higher channel is ignored, tested
+        apart)."""
+        keep = rw_mask(name) | (~defined_mask(name) & 0xFFFFFFFF if garbage else 0)
+        value = random.getrandbits(32) & keep
+        if name == "SDO_SEL":
+            f = field_info("SDO_SEL", "CHAN")
+            value = (value & ~(((1 << width(f)) - 1) << f.lo)) | (random.randrange(self.n_sdo)
+                                                                  << f.lo)
+        return value
+
     def rw_registers(self) -> list[tuple[str, int | None]]:
         """(register, slot) of every register with an RW field, every slot of MAX_NODES."""
         out: list[tuple[str, int | None]] = []
@@ -361,9 +387,9 @@ async def run_rw_reset_values_and_readback(dut):
     assert int(dut.sdo_timeout_ms_o.value) == 1000
     expected: dict[tuple[str, int | None], int] = {}
     for name, slot in tb.rw_registers():
-        value = random.getrandbits(32) & (rw_mask(name) | ~defined_mask(name) & 0xFFFFFFFF)
+        value = tb.random_rw(name, garbage=True)
         await host.write(name, value, slot)
-        expected[(name, slot)] = value & rw_mask(name)
+        expected[(name, slot)] = (value & rw_mask(name)) | generic_ro_word(name)
     for (name, slot), value in expected.items():
         got = await host.read(name, slot)
         assert got == value, f"{name}({slot}) read {got:#010x}, wrote {value:#010x}"
@@ -397,7 +423,8 @@ async def run_ro_inputs_visible(dut):
     for reg, info in R.REGISTERS.items():
         for fname, f in info.fields.items():
             if f.access in ("RO", "W1C") and f.reset is None:
-                assert (reg, fname) in RO_SOURCES, f"{reg}.{fname}: no input mapped in the bench"
+                assert (reg, fname) in RO_SOURCES or (reg, fname) in GENERIC_RO, \
+                    f"{reg}.{fname}: no input mapped in the bench"
     for _ in range(3):
         values = {n: random.getrandbits(tb.input_width(n)) for n in (*STATUS_INPUTS, *SLOT_INPUTS)}
         await FallingEdge(dut.clk_i)
@@ -408,6 +435,7 @@ async def run_ro_inputs_visible(dut):
             info = R.REGISTERS[reg]
             for slot in (range(tb.max_nodes) if info.stride else [None]):
                 exp = 0
+                exp |= generic_ro_word(reg)
                 for (r2, fname), (src, off) in RO_SOURCES.items():
                     if r2 != reg:
                         continue
@@ -671,6 +699,58 @@ async def run_sdo_transfers_through_driver(dut):
             raise AssertionError("SdoAbort not raised")
 
 
+@cocotb.test(timeout_time=2, timeout_unit="ms")
+async def run_sdo_channel_select(dut):
+    """Purpose: SDO_SEL (channel select, per-channel DONE) and ACFG_FAIL_SEL.
+
+    Verifies: SDO_SEL.CHANNELS = N_SDO; a write of CHAN >= N_SDO is ignored (CHAN and
+    sdo_chan_o keep their value); a done event of channel c sets SDO_SEL.DONE bit c only, and
+    SDO_CMD.DONE shows the bit of the selected channel; an SDO_CMD write clears the DONE bit of
+    the selected channel only; ACFG_FAIL_SEL reaches acfg_fail_sel_o in the write cycle itself
+    (the failure log's read address), so the next read already shows the selected failure.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    host = tb.host
+    n = tb.n_sdo
+    assert R.get_field("SDO_SEL", "CHANNELS", await host.read("SDO_SEL")) == n
+    last = n - 1
+    await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=last))
+    for bad in range(n, 4):
+        await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=bad))
+        assert R.get_field("SDO_SEL", "CHAN", await host.read("SDO_SEL")) == last
+        assert int(dut.sdo_chan_o.value) == last
+    for c in range(n):
+        await tb.strobe("ev_sdo_done_i", 1 << c)
+    done_all = (1 << n) - 1
+    assert R.get_field("SDO_SEL", "DONE", await host.read("SDO_SEL")) == done_all
+    for c in range(n):
+        await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=c))
+        assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
+    # SDO_CMD on the last channel clears its DONE bit only
+    await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=last))
+    await host.write("SDO_CMD", R.make("SDO_CMD", NODE=1, UPLOAD=1))
+    assert R.get_field("SDO_SEL", "DONE", await host.read("SDO_SEL")) == done_all & ~(1 << last)
+    assert not await host.read("SDO_CMD") & R.SDO_CMD_DONE
+    if n > 1:
+        await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=0))
+        assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
+    # ACFG_FAIL_SEL: combinational in the write cycle, registered afterwards
+    seen = []
+
+    async def watch() -> None:
+        while True:
+            await FallingEdge(dut.clk_i)  # the middle of the write cycle
+            if dut.avs_write_i.value == 1 and int(dut.avs_address_i.value) == R.REG_ACFG_FAIL_SEL:
+                seen.append(int(dut.acfg_fail_sel_o.value))
+
+    task = cocotb.start_soon(watch())
+    for k in (5, 0, 15):
+        await host.write("ACFG_FAIL_SEL", k)
+        assert seen[-1] == k and int(dut.acfg_fail_sel_o.value) == k
+    task.cancel()
+
+
 @cocotb.test(timeout_time=5, timeout_unit="ms")
 async def run_unlisted_addresses_read_zero(dut):
     """Purpose: addresses outside the map (and node slots >= MAX_NODES) are inert.
@@ -683,7 +763,7 @@ async def run_unlisted_addresses_read_zero(dut):
     await tb.reset()
     host = tb.host
     for name, slot in tb.rw_registers():
-        await host.write(name, random.getrandbits(32) & rw_mask(name), slot)
+        await host.write(name, tb.random_rw(name), slot)
     before = {n: await host.read(n, s) for n, s in tb.rw_registers()}
     outputs = {p: int(getattr(dut, p).value) for p in RW_OUTPUTS.values()}
     unmapped = sorted(set(range(256)) - tb.mapped_addresses())
@@ -771,20 +851,23 @@ async def run_checker_catches_two_cycle_buffer_latency(dut):
 # ============================================================================ pytest entry
 #: (MAX_NODES, CNT_BITS, cocotb tests or None for all)
 CONFIGS = {
-    "nodes4": (4, 32, None),
-    "nodes16": (16, 32, ["run_rw_reset_values_and_readback", "run_ro_inputs_visible",
-                         "run_pulses_one_cycle_with_fields", "run_unlisted_addresses_read_zero"]),
-    "nodes1_cnt4": (1, 4, ["run_counters_increment_saturate_clear",
-                           "run_rw_reset_values_and_readback", "run_unlisted_addresses_read_zero"]),
+    "nodes4": (4, 32, 2, None),
+    "nodes16": (16, 32, 4, ["run_rw_reset_values_and_readback", "run_ro_inputs_visible",
+                            "run_pulses_one_cycle_with_fields", "run_sdo_channel_select",
+                            "run_unlisted_addresses_read_zero"]),
+    "nodes1_cnt4": (1, 4, 1, ["run_counters_increment_saturate_clear",
+                              "run_rw_reset_values_and_readback", "run_sdo_channel_select",
+                              "run_unlisted_addresses_read_zero"]),
 }
 
 
 @pytest.mark.sim
 @pytest.mark.parametrize("config", list(CONFIGS))
 def test_canopen_host_regs(request, config):
-    max_nodes, cnt_bits, tests = CONFIGS[config]
+    max_nodes, cnt_bits, n_sdo, tests = CONFIGS[config]
     run_cocotb(toplevel="canopen_host_regs", module="tb.test_canopen_host_regs",
-               name=request.node.name, parameters={"MAX_NODES": max_nodes, "CNT_BITS": cnt_bits},
+               name=request.node.name,
+               parameters={"MAX_NODES": max_nodes, "CNT_BITS": cnt_bits, "N_SDO": n_sdo},
                testcase=tests)
 
 

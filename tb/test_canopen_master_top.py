@@ -15,10 +15,11 @@ import random
 import can
 import cocotb
 import pytest
-from cocotb.triggers import RisingEdge, Timer
+from cocotb.triggers import Timer, ValueChange
 
 from sim_models.canopen_slave import NmtState
 from sim_models.sim_time import PS_PER_MS, PS_PER_US
+from tb.tblib import regmap as R
 from tb.tblib.fsm_states import THESIS_IDS, coverage_report
 from tb.tblib.metrics import record
 from tb.tblib.model_clock import sim_time_ps
@@ -312,6 +313,58 @@ async def run_sdo_and_reinit(dut):
     await Timer(1, "ns")
 
 
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_omni_mode_refuses_canopen_services(dut):
+    """Purpose: one protocol per bus: in Omni-ID mode the CANopen services are refused and
+    silent, and they work again when the mode is left.
+
+    Verifies: with CTRL.OMNI = 1 an NMT_CMD write sets NMT_CMD.REFUSED, an SDO_CMD write sets
+    SDO_CMD.REFUSED (channel 0), ACFG_CTRL.START sets ACFG_STATUS.REFUSED and runs nothing; a
+    node-guarding slot sends no RTR; the drives' heartbeats do not reach the node monitor
+    (NODE_STATUS unchanged); over 20 ms nothing but the drives' own frames is on the bus.
+    Back in CANopen mode the SDO upload, the NMT command and the list all work, and each
+    accepted request clears its REFUSED flag.
+    """
+    tb = SystemTB(dut)
+    await boot_network(tb)
+    host = tb.host
+    for s in tb.slaves:
+        s.write(0x1017, 0, 5)                    # heartbeats every 5 ms
+    await host.acfg_load([(2, 0x1017, 0, 2, 5)])
+    await host.write("CTRL", R.CTRL_OMNI)
+    await host.node_config(0, 1, MODE_GUARDING, 2, life=3)
+    st0 = await host.node_status(0)
+    n0 = len(tb.frames())
+    await host.write("NMT_CMD", R.make("NMT_CMD", CS=NMT_START, NODE=0))
+    await host.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=0x1008, SUBINDEX=0))
+    await host.write("SDO_CMD", R.make("SDO_CMD", NODE=2, UPLOAD=1))
+    await host.acfg_start(start_nodes=True)
+    await Timer(20, "ms")
+    assert await host.read("NMT_CMD") & R.NMT_CMD_REFUSED
+    assert await host.sdo_command(0) & R.SDO_CMD_REFUSED
+    acfg = await host.read("ACFG_STATUS")
+    assert acfg & R.ACFG_STATUS_REFUSED and not acfg & R.ACFG_STATUS_BUSY, hex(acfg)
+    master_ids = {r.msg.arbitration_id for r in tb.frames()[n0:] if r.sender == "master_mcp2510"}
+    assert master_ids == set(), sorted(map(hex, master_ids))
+    assert {r.msg.arbitration_id for r in tb.frames()[n0:]} <= {0x701, 0x702, 0x703, 0x704}
+    st1 = await host.node_status(0)
+    assert st1["alive"] == st0["alive"] and st1["last_ms"] == st0["last_ms"], (st0, st1)
+    assert all(s.nmt_state == NmtState.PRE_OPERATIONAL for s in tb.slaves)
+    # CANopen again: the same requests are accepted
+    await host.node_config(0, 1, MODE_OFF, 0)
+    await host.write("CTRL", 0)
+    assert await host.sdo_upload(2, 0x1008, 0) == tb.slave(2).read_raw(0x1008, 0)
+    assert not await host.sdo_command(0) & R.SDO_CMD_REFUSED
+    await host.nmt(NMT_START, 0)
+    await tb.wait_for(tb.all_operational, 2_000, 10, "operational")
+    assert not await host.read("NMT_CMD") & R.NMT_CMD_REFUSED
+    st = await host.acfg_run(start_nodes=False, timeout_us=20_000)
+    assert st["nodes_ok"] == 1 and not (await host.read("ACFG_STATUS")) & R.ACFG_STATUS_REFUSED
+    tb.check_models_clean()
+    merge_coverage(tb)
+    await Timer(1, "ns")
+
+
 @cocotb.test(timeout_time=300, timeout_unit="ms")
 async def run_pdo_cycle(dut):
     """Purpose: set-points and feedback every SYNC through the PDO engine; RTR on a master PDO.
@@ -376,7 +429,7 @@ async def run_bench_sdo(dut):
     """
     tb = SystemTB(dut)
     await boot_network(tb)
-    done = dut.core_inst.sdo_done
+    done = dut.core_inst.sdo_ch_done  # bit 0: channel 0's done event
 
     # expedited download of 2 bytes, median of 5
     rts = []
@@ -402,9 +455,12 @@ async def run_bench_sdo(dut):
 
 
 async def wait_rising(sig) -> int:
-    """Time (ps) of the next rising edge of ``sig``."""
-    await RisingEdge(sig)
-    return sim_time_ps()
+    """Time (ps) of the next rise of bit 0 of ``sig``."""
+    while True:
+        await ValueChange(sig)
+        v = sig.value
+        if v.is_resolvable and int(v) & 1:
+            return sim_time_ps()
 
 
 @cocotb.test(timeout_time=10, timeout_unit="ms")

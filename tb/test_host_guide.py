@@ -32,7 +32,7 @@ async def poll(tb: SystemTB, addr: int, mask: int, what: str, limit_us: int = 50
 
 @cocotb.test(timeout_time=200, timeout_unit="ms")
 async def run_guide_example(dut):
-    """Purpose: the guide's steps 1-6 in order, with the guide's literal values.
+    """Purpose: the guide's steps 1-7 in order, with the guide's literal values.
 
     Verifies: ID reads "CO01"; STATUS.INIT_DONE; the configuration list of step 2 (node 3:
     heartbeat 10 ms) runs with 1 node ok; the expedited download of step 3 puts
@@ -40,7 +40,9 @@ async def run_guide_example(dut):
     returns node 3's device name and its length in SDO_CMD.XFER_SIZE; the abort of step 5 reads
     0602 0000h; the PDO cycle of step 6 sends 203h [0F 00 40 E2 01 00] after each SYNC, the
     drive's target position becomes 123456, and the feedback snapshot of 183h has a sequence
-    number that grows by one per SYNC.
+    number that grows by one per SYNC; the two uploads of step 7 run at once on channels 1
+    and 0 (their requests interleave), SDO_SEL reads 02000300h when both are done and each
+    channel's buffer holds its node's device name.
     """
     tb = SystemTB(dut)
     await tb.reset()
@@ -112,6 +114,30 @@ async def run_guide_example(dut):
     assert tb.slave(3).read(0x607A, 0) == 123456
     sent = {bytes(r.msg.data) for r in tb.frames(0x203)}
     assert sent == {bytes.fromhex("0F0040E20100")}, sent
+    # step 7: two uploads at once, node 2 on channel 1 and node 3 on channel 0
+    await host.write(0x75, 0x00000001)   # SDO_SEL: channel 1
+    await host.write(0x70, 0x00001008)   # SDO_OBJ: device name
+    await host.write(0x71, 0x00000082)   # SDO_CMD: node 2, upload (channel 1)
+    await host.write(0x75, 0x00000000)   # SDO_SEL: channel 0
+    await host.write(0x71, 0x00000083)   # SDO_CMD: node 3, upload (channel 0)
+    for _ in range(5_000):
+        word = await host.read(0x75)
+        if (word >> 8) & 0x3 == 0x3:
+            break
+        await Timer(10, "us")
+    assert word == 0x02000300, hex(word)
+    names = {}
+    for chan, node in ((0, 3), (1, 2)):
+        await host.write(0x75, chan)
+        raw = b""
+        for w in range(len(name) // 4):
+            raw += (await host.read(0x80 + w)).to_bytes(4, "little")
+        names[node] = raw
+    for node in (2, 3):
+        assert names[node] == tb.slave(node).read_raw(0x1008, 0)[:len(names[node])], node
+    t2 = [r.t_start_ps for r in tb.frames(0x602)]
+    t3 = [r.t_start_ps for r in tb.frames(0x603) if r.t_start_ps > t2[0]]
+    assert any(t2[0] < t < t2[-1] for t in t3), "the two uploads did not interleave"
     tb.check_models_clean()
     # leave no SPI transfer in flight for the next test's fresh MCP2510 model
     while int(dut.spi_cs_n_o.value) != 1:

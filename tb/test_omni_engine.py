@@ -529,9 +529,10 @@ async def run_query_window_exact(dut):
 
     Verifies: M = 2: queries at cycles 0 and 2 only; window W = 20 us from tx_ack_i of the
     query: a reply sampled one edge before the edge that samples the W-th tick after the ack
-    counts, one sampled at that edge does not; missing slots sticky (W1C), ALIVE, counter =
-    missing slots, one ev_o; STOP_ON_MISSING queues NMT stop all [00][00]; a reply from a node
-    in no slot is unexpected.
+    counts, one sampled at that edge does not; missing slots sticky (W1C) with the lowest
+    missing slot's node-ID in OMNI_MISSING.NODE, ALIVE, counter = missing slots, one ev_o;
+    STOP_ON_MISSING queues NMT stop all [00][00]; a reply from a node in no slot is
+    unexpected.
     """
     tb = TB(dut)
     await tb.start()
@@ -548,7 +549,8 @@ async def run_query_window_exact(dut):
     await rx_at(tb, oc.query_reply_frame(SLAVES[3]), t_close)
     await tb.idle(20)
     assert await tb.read("OMNI_ALIVE") == 0b0111
-    assert await tb.read("OMNI_MISSING") == 0b1000
+    # MISSING = slot 3, NODE = its node-ID (the lowest missing slot's)
+    assert await tb.read("OMNI_MISSING") == 0b1000 | SLAVES[3] << 8
     assert await tb.read("OMNI_CNT_NODE_MISSING") == 1
     assert len(tb.ev_edges) == ev0 + 1
     assert frame_key(tb.tx_log[-1].msg) == frame_key(oc.nmt_frame(0, oc.NMT_STOP))

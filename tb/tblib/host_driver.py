@@ -52,6 +52,10 @@ class SdoTimeout(TimeoutError):
     """SDO_CMD.DONE did not come within the driver's poll budget."""
 
 
+class SdoRefused(Exception):
+    """The master refused an SDO_CMD write (SDO_CMD.REFUSED): nothing was sent."""
+
+
 class AvalonSuffixMaster(AvalonMaster):
     """:class:`AvalonMaster` on a slave whose ports end in ``_i``/``_o``.
 
@@ -120,6 +124,10 @@ class CanopenMasterHost:
         self.poll_cycles = poll_cycles
         #: PDO_SEL is shared by every register of the PDO window: one sequence at a time
         self._pdo_lock = Lock()
+        #: SDO_SEL likewise for SDO_OBJ .. SDO_BUF; transfers on different channels run
+        #: concurrently, their register sequences take turns (the last SDO_SEL value is cached)
+        self._sdo_lock = Lock()
+        self._sdo_chan: int | None = None
 
     # ------------------------------------------------------------------ raw access
     @staticmethod
@@ -254,49 +262,77 @@ class CanopenMasterHost:
         """SDO COB-IDs; 0 selects the default 600h/580h + node."""
         await self.write("SDO_COB", R.make("SDO_COB", REQUEST=request, RESPONSE=response))
 
-    async def _sdo_start(self, node: int, index: int, sub: int, upload: bool,
-                         size: int) -> None:
-        await self.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=index, SUBINDEX=sub))
-        await self.write("SDO_CMD", R.make("SDO_CMD", NODE=node, UPLOAD=int(upload), SIZE=size))
+    async def _sdo_select(self, chan: int) -> None:
+        """SDO_SEL.CHAN = ``chan`` (call with the SDO lock held)."""
+        if self._sdo_chan != chan:
+            await self.write("SDO_SEL", R.make("SDO_SEL", CHAN=chan))
+            self._sdo_chan = chan
 
-    async def _sdo_wait(self) -> int:
-        """Poll SDO_CMD until DONE; raise :class:`SdoAbort` on ERROR; return the size."""
+    async def sdo_channels(self) -> int:
+        """Number of SDO client channels of the core (SDO_SEL.CHANNELS)."""
+        return R.get_field("SDO_SEL", "CHANNELS", await self.read("SDO_SEL"))
+
+    async def _sdo_start(self, node: int, index: int, sub: int, upload: bool,
+                         size: int, chan: int = 0, data: bytes = b"") -> None:
+        async with self._sdo_lock:
+            await self._sdo_select(chan)
+            padded = bytes(data) + bytes(-len(data) % 4)
+            for w in range(len(padded) // 4):
+                await self.write(R.REG_SDO_BUF + w,
+                                 int.from_bytes(padded[4 * w:4 * w + 4], "little"))
+            await self.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=index, SUBINDEX=sub))
+            await self.write("SDO_CMD", R.make("SDO_CMD", NODE=node, UPLOAD=int(upload),
+                                               SIZE=size))
+
+    async def sdo_command(self, chan: int = 0) -> int:
+        """SDO_CMD of channel ``chan``."""
+        async with self._sdo_lock:
+            await self._sdo_select(chan)
+            return await self.read("SDO_CMD")
+
+    async def _sdo_wait(self, chan: int = 0) -> int:
+        """Poll SDO_CMD of ``chan`` until DONE; raise :class:`SdoAbort` on ERROR and
+        :class:`SdoRefused` on REFUSED; return the size."""
         for _ in range(self.max_polls):
-            word = await self.read("SDO_CMD")
+            async with self._sdo_lock:
+                await self._sdo_select(chan)
+                word = await self.read("SDO_CMD")
+                code = await self.read("SDO_ABORT") if word & R.SDO_CMD_ERROR else 0
             if word & R.SDO_CMD_DONE:
                 if word & R.SDO_CMD_ERROR:
-                    code = await self.read("SDO_ABORT")
                     raise SdoAbort(code, bool(word & R.SDO_CMD_ABORT_SENT))
                 return R.get_field("SDO_CMD", "XFER_SIZE", word)
+            if word & R.SDO_CMD_REFUSED:
+                raise SdoRefused(f"SDO_CMD on channel {chan} refused (SDO_CMD = {word:#010x})")
             await ClockCycles(self.clock, self.poll_cycles)
         raise SdoTimeout(f"SDO_CMD.DONE not seen within {self.max_polls} polls")
 
     async def sdo_download(self, node: int, index: int, sub: int, data: bytes,
-                           timeout_ms: int | None = None) -> None:
-        """Write ``data`` to object ``index``:``sub`` of ``node``."""
+                           timeout_ms: int | None = None, chan: int = 0) -> None:
+        """Write ``data`` to object ``index``:``sub`` of ``node`` through SDO channel
+        ``chan``."""
         if len(data) > 4 * R.SDO_BUF_WORDS:
             raise ValueError(f"SDO download of {len(data)} bytes: 0..{4 * R.SDO_BUF_WORDS}")
         if timeout_ms is not None:
             await self.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=timeout_ms))
-        padded = bytes(data) + bytes(-len(data) % 4)
-        for w in range(len(padded) // 4):
-            await self.write(R.REG_SDO_BUF + w, int.from_bytes(padded[4 * w:4 * w + 4], "little"))
-        await self._sdo_start(node, index, sub, False, len(data))
-        await self._sdo_wait()
+        await self._sdo_start(node, index, sub, False, len(data), chan, data)
+        await self._sdo_wait(chan)
 
     async def sdo_upload(self, node: int, index: int, sub: int,
-                         timeout_ms: int | None = None) -> bytes:
-        """Read object ``index``:``sub`` of ``node``."""
+                         timeout_ms: int | None = None, chan: int = 0) -> bytes:
+        """Read object ``index``:``sub`` of ``node`` through SDO channel ``chan``."""
         if timeout_ms is not None:
             await self.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=timeout_ms))
-        await self._sdo_start(node, index, sub, True, 0)
-        size = await self._sdo_wait()
+        await self._sdo_start(node, index, sub, True, 0, chan)
+        size = await self._sdo_wait(chan)
         if size > 4 * R.SDO_BUF_WORDS:
             raise ValueError(f"SDO upload reports {size} bytes, the buffer holds "
                              f"{4 * R.SDO_BUF_WORDS}")
         raw = bytearray()
-        for w in range((size + 3) // 4):
-            raw += await self._read_buf_word(w, min(4, size - 4 * w))
+        async with self._sdo_lock:
+            await self._sdo_select(chan)
+            for w in range((size + 3) // 4):
+                raw += await self._read_buf_word(w, min(4, size - 4 * w))
         return bytes(raw[:size])
 
     async def _read_buf_word(self, w: int, n_valid: int) -> bytes:
@@ -451,13 +487,24 @@ class CanopenMasterHost:
         await self.write("ACFG_CTRL", R.ACFG_CTRL_START | nodes)
 
     async def acfg_status(self) -> dict[str, int | bool]:
-        """ACFG_STATUS, ACFG_FAIL and ACFG_ABORT decoded."""
+        """ACFG_STATUS decoded, with the first failure of the run (ACFG_FAIL_SEL = 0)."""
         st = await self.read_fields("ACFG_STATUS")
-        fail = await self.read_fields("ACFG_FAIL")
+        first = await self.acfg_failure(0)
         return {"busy": bool(st["BUSY"]), "done": bool(st["DONE"]),
                 "nodes_ok": st["NODES_OK"], "nodes_fail": st["NODES_FAIL"],
-                "fail_node": fail["NODE"], "fail_entry": fail["ENTRY"],
-                "fail_abort": await self.read("ACFG_ABORT")}
+                "fail_node": first[0], "fail_entry": first[1], "fail_abort": first[2]}
+
+    async def acfg_failure(self, k: int) -> tuple[int, int, int]:
+        """(node, entry, abort code) of the k-th failing node of the last run (ACFG_FAIL_SEL
+        = k, then ACFG_FAIL and ACFG_ABORT); (0, 0, 0) beyond the run's failures."""
+        await self.write("ACFG_FAIL_SEL", R.make("ACFG_FAIL_SEL", INDEX=k))
+        fail = await self.read_fields("ACFG_FAIL")
+        return fail["NODE"], fail["ENTRY"], await self.read("ACFG_ABORT")
+
+    async def acfg_failures(self) -> list[tuple[int, int, int]]:
+        """Every logged failure of the last run (at most 16), in table order."""
+        n = min((await self.read_fields("ACFG_STATUS"))["NODES_FAIL"], 16)
+        return [await self.acfg_failure(k) for k in range(n)]
 
     async def acfg_run(self, start_nodes: bool = True, timeout_us: float = 1_000_000,
                        poll_us: float = 50) -> dict[str, int | bool]:
@@ -525,11 +572,13 @@ class CanopenMasterHost:
         await self.write("OMNI_CTRL", R.OMNI_CTRL_PARAM_SEND)
 
     async def omni_status(self) -> dict[str, int]:
-        """OMNI_STATUS fields plus OMNI_CYCLE, OMNI_ALIVE, OMNI_MISSING, OMNI_BUS_BITS."""
+        """OMNI_STATUS fields plus OMNI_CYCLE, OMNI_ALIVE, OMNI_MISSING (slot bitmap
+        ``missing``, lowest missing node-ID ``missing_node``), OMNI_BUS_BITS."""
         st = await self.read_fields("OMNI_STATUS")
         st["cycle"] = await self.read("OMNI_CYCLE")
         st["alive"] = await self.read("OMNI_ALIVE")
-        st["missing"] = await self.read("OMNI_MISSING")
+        miss = await self.read_fields("OMNI_MISSING")
+        st["missing"], st["missing_node"] = miss["MISSING"], miss["NODE"]
         st["bus_bits"] = await self.read("OMNI_BUS_BITS")
         return st
 

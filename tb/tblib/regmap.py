@@ -51,6 +51,7 @@ REG_SDO_CMD = 0x71
 REG_SDO_ABORT = 0x72
 REG_SDO_TIMEOUT_MS = 0x73
 REG_SDO_COB = 0x74
+REG_SDO_SEL = 0x75
 REG_ACFG_CTRL = 0x78
 REG_ACFG_STATUS = 0x79
 REG_ACFG_FAIL = 0x7A
@@ -58,6 +59,7 @@ REG_ACFG_ABORT = 0x7B
 REG_ACFG_ENTRY = 0x7C
 REG_ACFG_OBJ = 0x7D
 REG_ACFG_VALUE = 0x7E
+REG_ACFG_FAIL_SEL = 0x7F
 
 # per-node registers (slot 0)
 REG_NODE_CFG = 0x20
@@ -277,6 +279,7 @@ SDO_CMD_DONE = 0x2  # bit 1, RO
 SDO_CMD_ERROR = 0x4  # bit 2, RO
 SDO_CMD_XFER_SIZE_SHIFT = 8
 SDO_CMD_XFER_SIZE_MASK = 0x7FF00  # bits 18:8, RO
+SDO_CMD_REFUSED = 0x40000000  # bit 30, RO
 SDO_CMD_ABORT_SENT = 0x80000000  # bit 31, RO
 # SDO_ABORT
 SDO_ABORT_CODE_SHIFT = 0
@@ -289,12 +292,22 @@ SDO_COB_REQUEST_SHIFT = 0
 SDO_COB_REQUEST_MASK = 0x7FF  # bits 10:0, RW
 SDO_COB_RESPONSE_SHIFT = 16
 SDO_COB_RESPONSE_MASK = 0x7FF0000  # bits 26:16, RW
+# SDO_SEL
+SDO_SEL_CHAN_SHIFT = 0
+SDO_SEL_CHAN_MASK = 0x3  # bits 1:0, RW
+SDO_SEL_DONE_SHIFT = 8
+SDO_SEL_DONE_MASK = 0xF00  # bits 11:8, RO
+SDO_SEL_BUSY_SHIFT = 16
+SDO_SEL_BUSY_MASK = 0xF0000  # bits 19:16, RO
+SDO_SEL_CHANNELS_SHIFT = 24
+SDO_SEL_CHANNELS_MASK = 0x7000000  # bits 26:24, RO
 # ACFG_CTRL
 ACFG_CTRL_START = 0x1  # bit 0, pulse
 ACFG_CTRL_START_NODES = 0x2  # bit 1, RW
 # ACFG_STATUS
 ACFG_STATUS_BUSY = 0x1  # bit 0, RO
 ACFG_STATUS_DONE = 0x2  # bit 1, RO
+ACFG_STATUS_REFUSED = 0x4  # bit 2, RO
 ACFG_STATUS_NODES_OK_SHIFT = 8
 ACFG_STATUS_NODES_OK_MASK = 0xFF00  # bits 15:8, RO
 ACFG_STATUS_NODES_FAIL_SHIFT = 16
@@ -322,6 +335,9 @@ ACFG_OBJ_SUBINDEX_MASK = 0xFF0000  # bits 23:16, RW
 # ACFG_VALUE
 ACFG_VALUE_VALUE_SHIFT = 0
 ACFG_VALUE_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, WO
+# ACFG_FAIL_SEL
+ACFG_FAIL_SEL_INDEX_SHIFT = 0
+ACFG_FAIL_SEL_INDEX_MASK = 0xF  # bits 3:0, RW
 # NODE_CFG
 NODE_CFG_NODE_ID_SHIFT = 0
 NODE_CFG_NODE_ID_MASK = 0x7F  # bits 6:0, RW
@@ -537,6 +553,8 @@ OMNI_ALIVE_ALIVE_MASK = 0xFF  # bits 7:0, RO
 # OMNI_MISSING
 OMNI_MISSING_MISSING_SHIFT = 0
 OMNI_MISSING_MISSING_MASK = 0xFF  # bits 7:0, W1C
+OMNI_MISSING_NODE_SHIFT = 8
+OMNI_MISSING_NODE_MASK = 0xFF00  # bits 15:8, RO
 # OMNI_PMB_INFO
 OMNI_PMB_INFO_SENDER_SHIFT = 0
 OMNI_PMB_INFO_SENDER_MASK = 0xFF  # bits 7:0, RO
@@ -585,7 +603,7 @@ OMNI_CNT_PARAM_RX_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 
 # reset words
 ID_RESET = 0x434F3031
-VERSION_RESET = 0x00010001
+VERSION_RESET = 0x00010002
 CTRL_RESET = 0x00000000
 IRQ_STATUS_RESET = 0x00000000
 IRQ_ENABLE_RESET = 0x00000000
@@ -611,6 +629,7 @@ ACFG_CTRL_RESET = 0x00000000
 ACFG_ENTRY_RESET = 0x00000000
 ACFG_OBJ_RESET = 0x00000000
 ACFG_VALUE_RESET = 0x00000000
+ACFG_FAIL_SEL_RESET = 0x00000000
 NODE_CFG_RESET = 0x00000000
 NODE_TIME_RESET = 0x00000000
 PDO_SEL_RESET = 0x00000000
@@ -657,9 +676,9 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "VERSION": RegInfo(
-        addr=0x01, access="RO", reset=0x10001, stride=0,
+        addr=0x01, access="RO", reset=0x10002, stride=0,
         fields={
-            "MINOR": FieldInfo(15, 0, "RO", 0x1),
+            "MINOR": FieldInfo(15, 0, "RO", 0x2),
             "MAJOR": FieldInfo(31, 16, "RO", 0x1),
         },
     ),
@@ -877,6 +896,7 @@ REGISTERS: dict[str, RegInfo] = {
             "DONE": FieldInfo(1, 1, "RO", 0x0),
             "ERROR": FieldInfo(2, 2, "RO", None),
             "XFER_SIZE": FieldInfo(18, 8, "RO", None),
+            "REFUSED": FieldInfo(30, 30, "RO", None),
             "ABORT_SENT": FieldInfo(31, 31, "RO", None),
         },
     ),
@@ -899,6 +919,15 @@ REGISTERS: dict[str, RegInfo] = {
             "RESPONSE": FieldInfo(26, 16, "RW", 0x0),
         },
     ),
+    "SDO_SEL": RegInfo(
+        addr=0x75, access="RW + RO", reset=None, stride=0,
+        fields={
+            "CHAN": FieldInfo(1, 0, "RW", 0x0),
+            "DONE": FieldInfo(11, 8, "RO", 0x0),
+            "BUSY": FieldInfo(19, 16, "RO", None),
+            "CHANNELS": FieldInfo(26, 24, "RO", None),
+        },
+    ),
     "ACFG_CTRL": RegInfo(
         addr=0x78, access="RW + pulse", reset=0x0, stride=0,
         fields={
@@ -911,6 +940,7 @@ REGISTERS: dict[str, RegInfo] = {
         fields={
             "BUSY": FieldInfo(0, 0, "RO", None),
             "DONE": FieldInfo(1, 1, "RO", 0x0),
+            "REFUSED": FieldInfo(2, 2, "RO", None),
             "NODES_OK": FieldInfo(15, 8, "RO", None),
             "NODES_FAIL": FieldInfo(23, 16, "RO", None),
         },
@@ -947,6 +977,12 @@ REGISTERS: dict[str, RegInfo] = {
         addr=0x7E, access="WO", reset=0x0, stride=0,
         fields={
             "VALUE": FieldInfo(31, 0, "WO", None),
+        },
+    ),
+    "ACFG_FAIL_SEL": RegInfo(
+        addr=0x7F, access="RW", reset=0x0, stride=0,
+        fields={
+            "INDEX": FieldInfo(3, 0, "RW", 0x0),
         },
     ),
     "NODE_CFG": RegInfo(
@@ -1306,6 +1342,7 @@ OMNI_REGISTERS: dict[str, RegInfo] = {
         addr=0xD8, access="W1C", reset=None, stride=0,
         fields={
             "MISSING": FieldInfo(7, 0, "W1C", None),
+            "NODE": FieldInfo(15, 8, "RO", None),
         },
     ),
     "OMNI_PMB_INFO": RegInfo(
