@@ -16,7 +16,7 @@ from __future__ import annotations
 import cocotb
 from cocotb.triggers import Timer, ValueChange
 
-from sim_models.can_bus import CanBus, QueueNode
+from sim_models.can_bus import CanBus, NodeClock, QueueNode
 from sim_models.canopen_slave import CanopenSlave, NmtState, build_slaves
 from sim_models.mcp2510.chip import Mcp2510
 from sim_models.sim_time import PS_PER_MS, PS_PER_US, Scheduler
@@ -81,7 +81,9 @@ class SystemTB:
     """canopen_master_top + MCP2510 model + CAN bus + reference slaves + host driver."""
 
     def __init__(self, dut, *, node_ids=(1, 2, 3, 4), ppm=None, boot_time_ms: float = 1.0,
-                 with_raw_node: bool = True) -> None:
+                 with_raw_node: bool = True, slave_kwargs=None) -> None:
+        """``slave_kwargs``: node-ID -> extra CanopenSlave arguments of that slave (e.g. its
+        clock and control loop, ``sim_models.canopen_slave.drift.drive_kwargs``)."""
         self.dut = dut
         self.clk_hz = param("CLK_FREQ_HZ")
         self.bitrate = param("CAN_BITRATE_BPS")
@@ -92,9 +94,19 @@ class SystemTB:
         self.bus = CanBus(self.sched, self.bitrate)
         self.chip = Mcp2510(self.sched, osc_hz=param("OSC_FREQ_HZ"), name="master_mcp2510")
         self.bus.attach(self.chip)
-        self.slaves: list[CanopenSlave] = build_slaves(
-            self.sched, self.bus, list(node_ids), ppm=list(ppm) if ppm else None,
-            boot_time_ps=int(boot_time_ms * PS_PER_MS))
+        if not slave_kwargs:
+            self.slaves: list[CanopenSlave] = build_slaves(
+                self.sched, self.bus, list(node_ids), ppm=list(ppm) if ppm else None,
+                boot_time_ps=int(boot_time_ms * PS_PER_MS))
+        else:  # as build_slaves, with per-node arguments (a "clock" there replaces ppm)
+            self.slaves = []
+            for i, n in enumerate(node_ids):
+                kw = {"boot_time_ps": int(boot_time_ms * PS_PER_MS), **slave_kwargs.get(n, {})}
+                if "clock" not in kw and ppm:
+                    kw["clock"] = NodeClock(ppm[i])
+                s = CanopenSlave(self.sched, n, bitrate_bps=self.bitrate, **kw)
+                self.bus.attach(s)
+                self.slaves.append(s)
         self.raw = QueueNode("raw", self.bitrate) if with_raw_node else None
         if self.raw is not None:
             self.bus.attach(self.raw)
