@@ -567,10 +567,10 @@ async def run_node_monitoring_and_traces(dut):
     node query (RTR id 0) every 10 cycles is answered by RTRs 004h, 008h, 010h, 020h in
     ascending order (Fig 4-18); a PC's query is answered by the master with RTR 002h (Table
     4-2); after wheel 10h loses its transmitter, the next query's window closes with
-    OMNI_MISSING = its slot only, OMNI_CNT_NODE_MISSING +1 per such query, IRQ_STATUS.NODE, NMT
-    stop all [00][00] on the bus within 2 T_s of that query (and again after every later query
-    that still misses it); all wheels stop; the master IDs on the bus are exactly those of Table
-    4-2.
+    OMNI_MISSING = its slot only (NODE = 10h), OMNI_CNT_NODE_MISSING +1 per such query,
+    IRQ_STATUS.NODE, NMT stop all [00][00] on the bus within 2 T_s of that query (and again
+    after every later query that still misses it); all wheels stop; the master IDs on the bus
+    are exactly those of Table 4-2.
     """
     tb = SystemTB(dut, node_ids=(), with_raw_node=True)
     period_ps = PERIOD_US * PS_PER_US
@@ -632,7 +632,7 @@ async def run_node_monitoring_and_traces(dut):
     t_stop = nmt[1][0]
     assert q_after.t_end_ps < t_stop <= q_after.t_start_ps + 2 * period_ps, (q_after, t_stop)
     st = await host.omni_status()
-    assert st["missing"] == 1 << 2, st
+    assert st["missing"] == 1 << 2 and st["missing_node"] == 0x10, st
     stops_after_query = sum(1 for q in queries if q.t_start_ps > cut["t"])
     assert (await host.omni_counters())["node_missing"] == stops_after_query == len(nmt) - 1
     assert await host.irq_status() & R.IRQ_STATUS_NODE

@@ -168,7 +168,7 @@ class OmniSlave(CanNode):
         self.broadcast_with_sender = broadcast_with_sender
         _, self.slot_width, _ = oc.slot_layout(broadcast_fc, broadcast_with_sender)
         self.feedback = feedback
-        self.resync = resync
+        self.resync_mode = resync  #: "none" | "thesis" | "sync_frame" (resync() is the method)
         self.resync_k = int(resync_k)
         self.sample_phase_ps = int(sample_phase_ps)
         self.start_delay_ps = self.period_ps if start_delay_ps is None else int(start_delay_ps)
@@ -275,7 +275,7 @@ class OmniSlave(CanNode):
         now = self.sched.now_ps
         can_id = msg.arbitration_id
         if oc.is_omni_sync(msg):
-            if self._started and self.resync == "sync_frame":
+            if self._started and self.resync_mode == "sync_frame":
                 self._rephase_grid("sync_frame")
             return
         if can_id == 0:
@@ -344,7 +344,7 @@ class OmniSlave(CanNode):
         self._epoch = 0
         self._last_tick_local = None
         self._sp_value, self._sp_t, self._sp_arrivals = None, None, 0
-        if self.resync == "thesis" and self.rephase_at_start:
+        if self.resync_mode == "thesis" and self.rephase_at_start:
             self._armed = True
         else:
             self._timer.start(self.period_ps, self.start_delay_ps)
@@ -370,7 +370,7 @@ class OmniSlave(CanNode):
 
     def _on_timer(self, _k: int) -> None:
         self._tick()
-        if self.resync == "thesis" and self._n % self.resync_k == 0:
+        if self.resync_mode == "thesis" and self._n % self.resync_k == 0:
             self._timer.stop()
             self._armed = True
 

@@ -75,8 +75,7 @@ class AnchoredSlave(OmniSlave):
         if self.started and self.anchor_ps is None:
             assert not self.control_log, "sample before the anchor frame"
             self.anchor_ps = t_ps
-            # the instance attribute ``resync`` (the mode string) shadows the method
-            OmniSlave.resync(self)
+            self.resync()
 
 
 def make_slave(sched: Scheduler, spec: SlaveSpec, period_ps: int, k: int,
@@ -166,9 +165,11 @@ def python_reference(slaves: list[SlaveSpec], *, period_ps: int, n_cycles: int, 
     """The same network with the transaction-level reference master."""
     sched = Scheduler()
     bus = CanBus(sched, bitrate)
+    # the same feasibility inputs as the RTL master: one feedback frame per sending slave
     master = OmniMaster(sched, bitrate_bps=bitrate, period_ps=period_ps, n_axes=len(slaves),
                         sync_every=k, n_cycles=n_cycles,
-                        first_cycle_delay_ps=first_cycle_delay_ps)
+                        first_cycle_delay_ps=first_cycle_delay_ps,
+                        feedback_dlcs=[FB_DLC for s in slaves if s.fc is not None])
     bus.attach(master)
     models = [bus.attach(make_slave(sched, s, period_ps, k, bitrate)) for s in slaves]
     master.start()
