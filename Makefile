@@ -43,7 +43,7 @@ synth-check: $(STAMP)
 	$(PY) scripts/synth.py --check
 
 test: lint synth-check
-	$(PY) -m pytest -n auto -m "not bench" -q
+	$(PY) -m pytest -n auto --maxschedchunk=1 -m "not bench" -q
 
 synth: $(STAMP)
 	$(PY) scripts/synth.py

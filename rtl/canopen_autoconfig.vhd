@@ -9,7 +9,7 @@
 --   The boot sequence of the Hefei thesis: configure every slave by SDO (PDO communication and
 --   mapping parameters 1400h/1600h/1800h/1A00h, heartbeat producer time 1017h, drive mode
 --   objects...), then start it with NMT, then exchange PDOs.
---   The host (or a generic-initialised image) fills a table of entries {node, index, subindex,
+--   The host fills (ACFG_* registers) a table of entries {node, index, subindex,
 --   size 1..4, value}. On start_i the block walks the table from entry 0 until an entry with
 --   node 0 (or the end): consecutive entries with the same node form that node's list. Each entry
 --   is one expedited SDO download through canopen_sdo_client (its value is written into the

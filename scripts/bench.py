@@ -23,7 +23,8 @@ def main() -> int:
     if FRAGMENTS.exists():
         shutil.rmtree(FRAGMENTS)
     rc = subprocess.call(
-        [sys.executable, "-m", "pytest", "-m", "bench", "-n", "auto", "-q", "tb"], cwd=ROOT
+        [sys.executable, "-m", "pytest", "-m", "bench", "-n", "auto", "--maxschedchunk=1", "-q",
+         "tb"], cwd=ROOT
     )
     if rc != 0:
         print("benchmarks failed", file=sys.stderr)
