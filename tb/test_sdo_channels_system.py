@@ -111,7 +111,10 @@ async def run_sdo_channels_interleave(dut):
                   100 * load_parallel, t_serial / PS_PER_US, 100 * load_serial)
     if os.environ.get("BENCH") == "1":
         record(f"sdo_channels_{n}", {
-            f"sdo_segmented_bytes_per_s_{n}ch": round(64 * n / (t_parallel / 1e12))})
+            f"sdo_segmented_bytes_per_s_{n}ch": round(64 * n / (t_parallel / 1e12)),
+            f"sdo_segmented_bytes_per_s_{n}ch_one_by_one": round(64 * n / (t_serial / 1e12)),
+            f"sdo_bus_load_pct_{n}ch": round(100 * load_parallel, 1),
+            f"sdo_bus_load_pct_{n}ch_one_by_one": round(100 * load_serial, 1)})
     tb.check_models_clean()
     await Timer(1, "ns")
 
@@ -226,3 +229,13 @@ def test_sdo_channels_system(request, n_sdo):
     run_cocotb(toplevel="canopen_master_top", module="tb.test_sdo_channels_system",
                name=request.node.name, parameters={**SYSTEM, "N_SDO": n_sdo},
                stop_time_ms=1000, ieee_asserts="disable")
+
+
+@pytest.mark.sim
+@pytest.mark.bench
+@pytest.mark.parametrize("n_sdo", [2, 4])
+def test_bench_sdo_channels_system(request, n_sdo):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_sdo_channels_system",
+               name=request.node.name, parameters={**SYSTEM, "N_SDO": n_sdo},
+               stop_time_ms=1000, ieee_asserts="disable", extra_env={"BENCH": "1"},
+               testcase="run_sdo_channels_interleave")
