@@ -248,7 +248,7 @@ add_parameter OMNI_ENABLE BOOLEAN true
 set_parameter_property OMNI_ENABLE DEFAULT_VALUE  true
 set_parameter_property OMNI_ENABLE TYPE           BOOLEAN
 set_parameter_property OMNI_ENABLE DISPLAY_NAME   "Build the Omni-ID protocol engine"
-set_parameter_property OMNI_ENABLE DESCRIPTION    "false: CANopen-only core (about 5100 LUTs smaller); CTRL.OMNI then has no effect"
+set_parameter_property OMNI_ENABLE DESCRIPTION    "false: CANopen-only core (about 5200 LUTs smaller); CTRL.OMNI then has no effect"
 set_parameter_property OMNI_ENABLE HDL_PARAMETER  true
 add_display_item "CANopen master" OMNI_ENABLE PARAMETER
 
