@@ -266,7 +266,8 @@ async def run_bench_pdo_axes(dut):
     Theoretical: :func:`axes_theoretical` (SYNC with its counter byte, as run here). Measured:
     the largest n for which a 1000-cycle run passes: the system runs n = theoretical + 1, then
     n = theoretical, theoretical - 1, ... until a run passes (the drives of a run are NMT
-    started, the others stopped, so they send nothing), with set-points chosen for maximum bit
+    started, the others stopped and their master channels invalid, so nothing is sent to or
+    expected from them), with set-points chosen for maximum bit
     stuffing (the feedback carries the same 8 bytes two cycles later); a run stops at the first
     cycle with a feedback PDO missing for the host, a late TPDO, a missed RPDO cycle or a
     set-point/feedback frame outside its cycle on the bus; a passing n runs 1000 cycles and must
@@ -294,6 +295,12 @@ async def run_bench_pdo_axes(dut):
                 await tb.host.nmt(NMT_STOP, s.node_id)
         await tb.wait_for(lambda n=n: all(s.nmt_state == NmtState.STOPPED
                                           for s in tb.slaves[n:]), 2_000, 10, "stopped")
+        # the master's channels of the stopped drives are switched off too: no set-point for
+        # them, no feedback expected (their RPDO would count a missed cycle every SYNC)
+        for ch in range(n, len(tb.slaves)):
+            node = tb.slaves[ch].node_id
+            await tb.host.tpdo_config(ch, 0x200 + node, 8, 1, valid=False)
+            await tb.host.rpdo_config(ch, 0x180 + node, 8, 1, valid=False)
         await configure_master_pdos(tb, axes)
         await tb.host.pdo_clear_counters()
         run = await run_cycles(tb, axes, N_CYCLES, period_us, sp_stuffed, stop_on_error=True)
