@@ -21,12 +21,18 @@ from sim_models.canopen_slave import NmtState
 from sim_models.sim_time import PS_PER_MS, PS_PER_US
 from tb.tblib import regmap as R
 from tb.tblib.fsm_states import THESIS_IDS, coverage_report
+from tb.tblib.host_driver import (
+    NMT_PREOP,
+    NMT_RESET_COMM,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+)
 from tb.tblib.metrics import record
 from tb.tblib.model_clock import sim_time_ps
 from tb.tblib.runner import run_cocotb
 from tb.tblib.system_tb import SystemTB
 
-NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 MODE_OFF, MODE_HEARTBEAT, MODE_GUARDING = 0, 1, 2
 
 #: transitions seen across all tests of this run (reported by the last test)

@@ -29,6 +29,7 @@ from sim_models.canopen_slave import CanopenSlave, NmtState, build_slaves, make_
 from sim_models.sim_time import PS_PER_MS, Scheduler
 from tb.tblib.bench_nodes import StrobeMonitor
 from tb.tblib.clkrst import reset_active_low, start_clock
+from tb.tblib.host_driver import NMT_RESET_NODE, NMT_START
 from tb.tblib.model_clock import ModelClock, sim_time_ps
 from tb.tblib.runner import param, run_cocotb
 
@@ -39,7 +40,6 @@ PPM = (0, 100, -100, 50)
 BOOT_MS = 2  # slaves send their boot-up this long after the bench starts them
 
 MODE_OFF, MODE_HB, MODE_GUARD = 0, 1, 2
-NMT_START, NMT_RESET_NODE = 0x01, 0x81
 
 
 @dataclass

@@ -25,6 +25,8 @@ from cocotb_bus.drivers.avalon import AvalonMaster
 from tb.tblib import regmap as R
 
 NODE_MODES = {"off": 0, "heartbeat": 1, "guarding": 2}
+#: NMT command specifiers (CiA 301), the CS field of NMT_CMD and byte 0 of the NMT frame
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 COUNTER_NAMES = ("RX_FRAMES", "TX_FRAMES", "UNEXPECTED", "MALFORMED", "RX_OVERFLOW",
                  "TX_ERROR", "SDO_ABORT", "HB_LOSS", "GUARD_ERR", "CAN_ERROR", "EMCY")
 IRQ_NAMES = tuple(R.REGISTERS["IRQ_STATUS"].fields)

@@ -32,6 +32,7 @@ from sim_models.can_bus import worst_case_bits
 from sim_models.canopen_slave import NmtState
 from sim_models.canopen_slave.cia402 import DriveState
 from sim_models.sim_time import PS_PER_US
+from tb.tblib.host_driver import NMT_START, NMT_STOP
 from tb.tblib.model_clock import sim_time_ps
 from tb.tblib.system_tb import SystemTB
 
@@ -50,7 +51,6 @@ PDO_BYTES = 8
 #: found it was c + 1: the core passed the counter of the *next* SYNC; fixed in the core, and
 #: run_rpdo_sync_count pins it). The checker compares against the preceding SYNC's counter.
 RPDO_SYNC_COUNT_SKEW = 0
-NMT_START = 0x01
 CW_SHUTDOWN, CW_ENABLE_OPERATION = 0x0006, 0x000F
 
 
@@ -192,11 +192,9 @@ async def boot_and_configure(tb: SystemTB, *, tpdo_tt: dict[int, int] | None = N
 
 
 async def nmt_start(tb: SystemTB, nodes: Sequence[int]) -> None:
-    """NMT start: one command for all slaves, else one per node (NMT_CMD holds one command:
-    wait until the previous one left)."""
+    """NMT start: one command for all slaves, else one per node (``host.nmt`` waits until
+    the previous command left NMT_CMD)."""
     for node in [0] if sorted(nodes) == sorted(s.node_id for s in tb.slaves) else nodes:
-        while await tb.host.nmt_busy():
-            await Timer(10, "us")
         await tb.host.nmt(NMT_START, node)
     await tb.wait_for(lambda: all(tb.slave(n).nmt_state == NmtState.OPERATIONAL
                                   for n in nodes), 2_000, 10, "operational")
@@ -263,6 +261,20 @@ async def configure_master_pdos(tb: SystemTB, axes: Sequence[Axis],
             await tb.host.rpdo_config(a.ch, 0x180 + a.node, fb_len, 253, rtr_poll=True)
         else:
             await tb.host.rpdo_config(a.ch, 0x180 + a.node, fb_len, 1)
+
+
+async def take_out_axes(tb: SystemTB, axes: Sequence[Axis]) -> None:
+    """Take ``axes`` out of the cycle: NMT-stop their drives (they send nothing) and set the
+    master's TPDO/RPDO channels of them invalid (no set-point sent, no feedback expected: an
+    RPDO channel left armed would count a missed cycle every SYNC)."""
+    for a in axes:
+        if tb.slave(a.node).nmt_state != NmtState.STOPPED:
+            await tb.host.nmt(NMT_STOP, a.node)
+    await tb.wait_for(lambda: all(tb.slave(a.node).nmt_state == NmtState.STOPPED
+                                  for a in axes), 2_000, 10, "stopped")
+    for a in axes:
+        await tb.host.tpdo_config(a.ch, 0x200 + a.node, PDO_BYTES, 1, valid=False)
+        await tb.host.rpdo_config(a.ch, 0x180 + a.node, PDO_BYTES, 1, valid=False)
 
 
 async def wait_sync_irq(tb: SystemTB) -> None:
