@@ -228,6 +228,7 @@ async def run_guide_through_c(dut):
     assert len(initiates) == 1, "the refused request put a frame on the bus"
     t2 = [r.t_start_ps for r in tb.frames(0x602)[n602:]]
     assert any(t2[0] < r.t_start_ps < t2[-1] for r in tb.frames(0x603)), "no interleaving"
+    tb.dut._log.info("C HAL guide: %d register accesses, %d idle polls", len(hal.log), hal.polls)
     tb.check_models_clean()
     await end_of_test(tb, hal)
 
