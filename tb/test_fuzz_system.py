@@ -293,12 +293,14 @@ class Fuzz:
             kind = rng.choice(kinds)
             if kind == "host_ro":
                 before = await self.static_regs()
-                a = rng.choice(unmapped + ro)
-                await h.write(a, rng.getrandbits(32))
+                a, v = rng.choice(unmapped + ro), rng.getrandbits(32)
+                t = sim_time_ps()
+                await h.write(a, v)
                 after = await self.static_regs()
-                self.rep.add("host_ro", [f"write {a:02X}h changed {k}: {before[k]:#x} -> "
-                                         f"{after[k]:#x}" for k in before
-                                         if before[k] != after[k]])
+                again = await self.static_regs()
+                self.rep.add("host_ro", [f"{t} ps: write {v:#010x} to {a:02X}h changed {k}: "
+                                         f"{before[k]:#x} -> {after[k]:#x} (then {again[k]:#x})"
+                                         for k in before if before[k] != after[k]])
             elif kind == "host_cmd":
                 await self.bad_command()
             else:
@@ -459,6 +461,16 @@ class Fuzz:
                            f"{t1 / PS_PER_MS:.3f}] ms: injected "
                            f"{self.raw.n_sent - sent0}, PDO {cnt}, CNT {c}")
 
+    def longest_dwell(self, t_end: int) -> tuple[int, int]:
+        """(start time, St number) of the longest stay outside St1 (reset holds included)."""
+        log = self.tb.fsm.log
+        best = (0, 0, -1)
+        for k, (t, st) in enumerate(log):
+            t_next = log[k + 1][0] if k + 1 < len(log) else t_end
+            if st != State.S_HUB and t_next - t > best[0]:
+                best = (t_next - t, t, int(st))
+        return best[1], best[2]
+
     def fsm_at(self, t: int) -> int:
         """The FSM state at time ``t`` (from the FSM monitor's log)."""
         st = [s for ts, s in self.tb.fsm.log if ts <= t]
@@ -538,6 +550,8 @@ class Fuzz:
             "sync_fired": fig["fired"], "sync_delay_us_max": fig["max_delay_ps"] / PS_PER_US,
             "sync_delay_clean_us_max": fig["max_delay_clean_ps"] / PS_PER_US,
             "fsm_longest_dwell_us": longest / PS_PER_US,
+            "fsm_longest_dwell_state": self.longest_dwell(t_end)[1],
+            "fsm_longest_dwell_at_ms": self.longest_dwell(t_end)[0] / PS_PER_MS,
             "sdo_transfers": len(self.sdo_log),
             "sdo_aborted": sum(r.error for r in self.sdo_log),
             "crc_injected": self.crc_injected, "held_back": self.raw.held_back,
@@ -554,10 +568,13 @@ def _seeds() -> list[int]:
 
 @cocotb.test(timeout_time=600_000, timeout_unit="ms")
 async def run_fuzz(dut):
-    """Purpose: the fuzz run of every seed in FUZZ_SEEDS (FUZZ_EPOCHS epochs of
-    FUZZ_EPOCH_MS each), on a fresh system per seed is not possible in one simulation, so
-    the seeds run one after the other with a master reset between them; every check of
-    tb/tblib/fuzz.py must pass (the figures go to the bench fragment when FUZZ_METRICS is set).
+    """Purpose: one fuzz run (seed FUZZ_SEEDS, FUZZ_EPOCHS epochs of FUZZ_EPOCH_MS, fault
+    classes FUZZ_CLASSES) on a fresh system.
+
+    Verifies every check of tb/tblib/fuzz.py (SYNC firing and delay, FSM dwell, PDO counts,
+    SDO bounds, error state, injected errors, CNT_TX_ERROR, refused commands, RO/unmapped
+    writes, heartbeats, model violations); the report (FUZZ_REPORT) and the trace
+    (FUZZ_TRACE) are written before the verdict.
     """
     classes = set(os.environ.get("FUZZ_CLASSES", ",".join(CLASSES)).split(","))
     unknown = classes - set(CLASSES)
