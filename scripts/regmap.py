@@ -1002,11 +1002,128 @@ def gen_markdown() -> str:
     return "\n".join(L)
 
 
+# ------------------------------------------------------------------------------ C header
+C_PREFIX = "CM_"
+
+
+def _c_comment(text: str) -> str:
+    """``text`` safe inside a C comment (no comment terminator, ASCII only)."""
+    text = text.replace("*/", "* /").replace("/*", "/ *")
+    return text.encode("ascii", "replace").decode("ascii")
+
+
+def _c_define(name: str, value: str, comment: str = "") -> str:
+    line = f"#define {C_PREFIX}{name:<34} {value}"
+    return f"{line:<58} /* {_c_comment(comment)} */" if comment else line
+
+
+def _c_fields(reg: Register) -> list[str]:
+    out = [f"/* {reg.name} */"]
+    for f in reg.fields:
+        base = f"{reg.name}_{f.name}"
+        where = f"bit {f.lo}" if f.width == 1 else f"bits {f.bits}"
+        out.append(_c_define(f"{base}_SHIFT", f"{f.lo}u", f"{where}, {f.access}"))
+        out.append(_c_define(f"{base}_MASK", f"0x{f.mask:08X}u"))
+    return out
+
+
+def gen_c() -> str:
+    g = NODE_GROUP
+    p = C_PREFIX
+    banner = ["=" * 94,
+              "canopen_master_regs.h",
+              "Project  : canopen_master - open-source CANopen master IP core (MCP2510 over SPI)",
+              "SPDX-License-Identifier: Apache-2.0",
+              "=" * 94,
+              STAMP]
+    L = [f"/* {line:<94} */" for line in banner]
+    L += [
+        "/*",
+        " * Register map of the host interface (canopen_host_regs, Avalon-MM slave, 32-bit data).",
+        f" * {p}REG_<NAME>        word address (what the HAL's rd/wr callbacks take);",
+        f" * {p}REG_<NAME>_BYTE   byte offset = 4 * word address (IOWR_32DIRECT / IORD_32DIRECT);",
+        f" * {p}REG_NODE_<R>_SLOT(k), {p}REG_SDO_BUF_W(w): per-slot and window word addresses;",
+        f" * {p}<REG>_<FIELD>_SHIFT / _MASK   field position and in-place mask;",
+        f" * {p}<REG>_RESET       reset word (registers whose every readable field has one);",
+        f" * {p}GET(F, w) / {p}PUT(F, v)   field F (e.g. {p}SDO_CMD_XFER_SIZE) of word w / "
+        "value v placed",
+        " *                       in field F (masked).",
+        f" * {p}REG_PDO_* lie in the PDO engine window; {p}REG_OMNI_* in the same window "
+        "banked by",
+        " * CTRL.OMNI. Tables: docs/register_map.md. C99, no include needed.",
+        " */",
+        "",
+        "#ifndef CANOPEN_MASTER_REGS_H",
+        "#define CANOPEN_MASTER_REGS_H",
+        "",
+        _c_define("ADDR_BITS", f"{ADDR_BITS}u", "word address width"),
+        _c_define("DATA_BITS", f"{DATA_BITS}u", "data width"),
+        _c_define("BYTE_OFFSET(word)", "(4u * (word))", "byte offset of a word address"),
+        _c_define("GET(F, w)", "(((w) & F##_MASK) >> F##_SHIFT)", "field F of word w"),
+        _c_define("PUT(F, v)", "(((0u + (v)) << F##_SHIFT) & F##_MASK)",
+                  "value v in field F"),
+        "",
+        "/* word addresses and byte offsets */",
+    ]
+    for r in REGISTERS:
+        L.append(_c_define(f"REG_{r.name}", f"0x{r.addr:02X}u", f"{r.access}: {r.desc}"))
+        L.append(_c_define(f"REG_{r.name}_BYTE", f"0x{4 * r.addr:03X}u"))
+    L += ["", f"/* per-node registers: slot k = 0 .. {g.generic} - 1 at address + k * "
+              f"{p}{g.name}_STRIDE */",
+          _c_define(f"{g.name}_STRIDE", f"{g.stride}u", "words per slot"),
+          _c_define(f"{g.name}_SLOTS_MAX", f"{g.slots_max}u", f"largest {g.generic}"),
+          _c_define(f"{g.name}_SLOTS_DEFAULT", f"{g.slots_default}u",
+                    f"default {g.generic}")]
+    for r in g.registers:
+        L.append(_c_define(f"REG_{r.name}", f"0x{r.addr:02X}u", f"{r.access}: slot 0"))
+        L.append(_c_define(f"REG_{r.name}_SLOT(k)",
+                           f"({p}REG_{r.name} + (k) * {p}{g.name}_STRIDE)", "slot k"))
+        L.append(_c_define(f"REG_{r.name}_SLOT_BYTE(k)",
+                           f"{p}BYTE_OFFSET({p}REG_{r.name}_SLOT(k))"))
+    L += ["", "/* pass-through window: SDO data buffer of the selected channel */",
+          _c_define(f"REG_{SDO_BUF.name}", f"0x{SDO_BUF.addr:02X}u", "first word"),
+          _c_define(f"REG_{SDO_BUF.name}_BYTE", f"0x{4 * SDO_BUF.addr:03X}u"),
+          _c_define(f"{SDO_BUF.name}_WORDS", f"{SDO_BUF.words}u", "words"),
+          _c_define(f"{SDO_BUF.name}_BYTES", f"{4 * SDO_BUF.words}u", "bytes"),
+          _c_define(f"REG_{SDO_BUF.name}_W(w)", f"({p}REG_{SDO_BUF.name} + (w))",
+                    "word w: bytes 4w..4w+3, byte 4w in 7:0"),
+          _c_define(f"REG_{SDO_BUF.name}_W_BYTE(w)",
+                    f"{p}BYTE_OFFSET({p}REG_{SDO_BUF.name}_W(w))"),
+          "", "/* PDO engine window (CTRL.OMNI = 0) and its registers */",
+          _c_define(f"REG_{PDO_WIN.name}", f"0x{PDO_WIN.addr:02X}u", "first word"),
+          _c_define(f"{PDO_WIN.name}_WORDS", f"{PDO_WIN.words}u", "words")]
+    for r in PDO_REGISTERS:
+        L.append(_c_define(f"REG_{r.name}", f"0x{r.addr:02X}u", f"{r.access}: {r.desc}"))
+        L.append(_c_define(f"REG_{r.name}_BYTE", f"0x{4 * r.addr:03X}u"))
+    L += ["", "/* Omni-ID engine bank of the same window (CTRL.OMNI = 1) and its registers */",
+          _c_define("REG_OMNI_WIN", f"0x{OMNI_WIN.addr:02X}u", "first word (= PDO_WIN)"),
+          _c_define("OMNI_WIN_WORDS", f"{OMNI_WIN.words}u", "words")]
+    for r in OMNI_REGISTERS:
+        L.append(_c_define(f"REG_{r.name}", f"0x{r.addr:02X}u", f"{r.access}: {r.desc}"))
+        L.append(_c_define(f"REG_{r.name}_BYTE", f"0x{4 * r.addr:03X}u"))
+    L += ["", "/* fields */"]
+    for reg in (list(REGISTERS) + list(g.registers) + list(PDO_REGISTERS)
+                + list(OMNI_REGISTERS)):
+        L += _c_fields(reg)
+    L += ["", "/* reset words */"]
+    L += [_c_define(f"{r.name}_RESET", f"0x{r.reset:08X}u") for r, _ in all_registers()
+          if r.reset is not None]
+    L += [_c_define(f"{r.name}_RESET", f"0x{r.reset:08X}u")
+          for r in PDO_REGISTERS + OMNI_REGISTERS if r.reset is not None]
+    L += ["", "#endif /* CANOPEN_MASTER_REGS_H */", ""]
+    names = [line.split()[1].split("(")[0] for line in L if line.startswith("#define ")]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"C header: names defined twice: {dup}")
+    return "\n".join(L)
+
+
 # ------------------------------------------------------------------------------ main
 OUTPUTS = {
     ROOT / "rtl" / "canopen_regs_pkg.vhd": gen_vhdl,
     ROOT / "docs" / "register_map.md": gen_markdown,
     ROOT / "tb" / "tblib" / "regmap.py": gen_python,
+    ROOT / "sw" / "include" / "canopen_master_regs.h": gen_c,
 }
 
 
