@@ -445,28 +445,39 @@ def _option(call: list[str], name: str) -> str | None:
     return call[call.index(name) + 1] if name in call[:-1] else None
 
 
+def _value(call: list[str]) -> str:
+    """The positional argument of a Quartus assignment call (options are '-x value' pairs)."""
+    words, rest = call[1:], []
+    while words:
+        if words[0].startswith("-") and len(words) > 1:
+            words = words[2:]
+        else:
+            rest.append(words.pop(0))
+    assert len(rest) == 1, f"cannot read {call}"
+    return rest[0]
+
+
 def quartus_problems(calls: list[list[str]], project_dir: Path, order: list[Path],
-                     ports) -> list[str]:
+                     ports, constraints: Path = ROOT / "constraints") -> list[str]:
     problems = []
     glob = [c for c in calls if c[0] == "set_global_assignment"]
-    single = {_option(c, "-name"): c[-1] for c in glob}
+    single = {_option(c, "-name"): _value(c) for c in glob}
     for name, value in (("FAMILY", FAMILY), ("DEVICE", DEVICE),
                         ("TOP_LEVEL_ENTITY", "canopen_master_top"),
                         ("VHDL_INPUT_VERSION", "VHDL_2008")):
         if single.get(name) != value:
             problems.append(f"{name} = {single.get(name)}, expected {value}")
     vhdl = [c for c in glob if _option(c, "-name") == "VHDL_FILE"]
-    files = [(project_dir / c[c.index("-name") + 2]).resolve() for c in vhdl]
+    files = [(project_dir / _value(c)).resolve() for c in vhdl]
     if files != [p.resolve() for p in order]:
         problems.append(f"VHDL_FILE list {[f.name for f in files]} != rtl/files.f "
                         f"{[p.name for p in order]}")
-    problems += [f"VHDL_FILE {c[c.index('-name') + 2]} without -library canopen_master"
+    problems += [f"VHDL_FILE {_value(c)} without -library canopen_master"
                  for c in vhdl if _option(c, "-library") != "canopen_master"]
-    sdc = [(project_dir / c[-1]).resolve() for c in glob if _option(c, "-name") == "SDC_FILE"]
-    if sdc != [(ROOT / "constraints" / "ep3c80_reference.sdc").resolve()]:
+    sdc = [(project_dir / _value(c)).resolve() for c in glob
+           if _option(c, "-name") == "SDC_FILE"]
+    if sdc != [(constraints / "ep3c80_reference.sdc").resolve()]:
         problems.append(f"SDC_FILE {sdc}")
-    if not any(c[0] == "export_assignments" for c in calls):
-        problems.append("assignments are never exported")
     locs = {_option(c, "-to"): c[1] for c in calls if c[0] == "set_location_assignment"}
     want = [f"{p.name}[{i}]" if p.vector else p.name for p in ports
             if BOARD_PORT_RE.match(p.name) for i in (range(p.width) if p.vector else [0])]
@@ -490,11 +501,30 @@ def test_quartus_project_script(tmp_path):
     project = tmp_path / "qproj"
     calls = _run_tcl(tmp_path, QUARTUS_STUBS, QUARTUS_TCL, str(project))
     assert ["project_new", "canopen_master"] in calls
+    assert calls[-2:] == [["export_assignments"], ["project_close"]], calls[-2:]
     problems = quartus_problems(calls, project, rtl_sources(RTL_DIR / "files.f"),
                                 entity_interface(TOP_VHD.read_text())[1])
     assert not problems, "scripts/quartus_project.tcl:\n" + "\n".join(problems)
     text = PINS_TCL.read_text()
     assert "PLACEHOLDER" in text and "Replace every set_location_assignment" in text
+
+
+@needs_tclsh
+def test_fusesoc_quartus_target_setup(tmp_path):
+    """``fusesoc run --setup --target quartus`` (no Quartus needed): the project script edalize
+    writes makes the same assignments as scripts/quartus_project.tcl (run with stubs)."""
+    build = tmp_path / "build"
+    res = _fusesoc("run", "--setup", "--build-root", str(build), "--target", "quartus", VLNV,
+                   cwd=tmp_path)
+    assert res.returncode == 0, res.stdout + res.stderr
+    work = build / "canopen_master_ip_canopen_master_1.0" / "quartus-quartus"
+    script = work / "canopen_master_ip_canopen_master_1_0.tcl"
+    src = work / "src" / "canopen_master_ip_canopen_master_1.0"
+    calls = _run_tcl(tmp_path, QUARTUS_STUBS, script, cwd=work)
+    order = [src / p.relative_to(ROOT) for p in rtl_sources(RTL_DIR / "files.f")]
+    problems = quartus_problems(calls, work, order, entity_interface(TOP_VHD.read_text())[1],
+                                constraints=src / "constraints")
+    assert not problems, "fusesoc quartus target:\n" + "\n".join(problems)
 
 
 @needs_tclsh
@@ -640,3 +670,63 @@ def test_qsys_checker_can_fail(tmp_path):
     doctored.write_text(bad)
     problems = qsys_problems(_run_tcl(tmp_path, QSYS_STUBS, doctored), comp)
     assert "canopen.s0 and jtag_uart.avalon_jtag_slave overlap" in problems, problems
+
+
+# ================================================================ the Nios II example
+DOC = ROOT / "docs" / "integration.md"
+EXAMPLE_MARK = "<!-- example: compiled against sw/ by tb/test_integration_kit.py"
+#: the parts of the Nios II HAL the example uses, declared as the Nios II HAL declares them
+NIOS_STUBS = {
+    "io.h": "#include <stdint.h>\n"
+            "#define IORD(base, reg) (*(volatile uint32_t *)((uintptr_t)(base) + 4u * (reg)))\n"
+            "#define IOWR(base, reg, data) \\\n"
+            "    (*(volatile uint32_t *)((uintptr_t)(base) + 4u * (reg)) = (data))\n",
+    "system.h": "#define CANOPEN_BASE 0x10000\n#define CANOPEN_IRQ 0\n"
+                "#define CANOPEN_IRQ_INTERRUPT_CONTROLLER_ID 0\n",
+    "sys/alt_irq.h": "typedef unsigned int alt_u32;\n"
+                     "typedef void (*alt_isr_func)(void *isr_context);\n"
+                     "int alt_ic_isr_register(alt_u32 ic_id, alt_u32 irq, alt_isr_func isr,\n"
+                     "                        void *isr_context, void *flags);\n"
+                     "int alt_ic_irq_enable(alt_u32 ic_id, alt_u32 irq);\n"
+                     "int alt_ic_irq_disable(alt_u32 ic_id, alt_u32 irq);\n",
+    "unistd.h": "int usleep(unsigned int us);\n",
+}
+
+
+def doc_example(text: str) -> str:
+    """The C block that follows the example marker in docs/integration.md."""
+    at = text.index(EXAMPLE_MARK)
+    m = re.search(r"```c\n(.*?)```", text[at:], re.S)
+    assert m, "no ```c block after the example marker"
+    return m.group(1)
+
+
+def _compile_example(tmp_path: Path, code: str) -> subprocess.CompletedProcess:
+    stubs = tmp_path / "nios2_stubs"
+    for name, body in NIOS_STUBS.items():
+        (stubs / name).parent.mkdir(parents=True, exist_ok=True)
+        (stubs / name).write_text(body)
+    src = tmp_path / "main.c"
+    src.write_text(code)
+    return subprocess.run(
+        [shutil.which("gcc") or "cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic",
+         "-fsyntax-only", f"-I{stubs}", f"-I{SW_DIR}", f"-I{SW_DIR / 'include'}", str(src)],
+        capture_output=True, text=True, timeout=60, check=False)
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
+def test_doc_nios2_example_compiles(tmp_path):
+    res = _compile_example(tmp_path, doc_example(DOC.read_text()))
+    assert res.returncode == 0, res.stderr
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
+def test_doc_nios2_example_check_can_fail(tmp_path):
+    """A HAL function that does not exist, and a callback of the wrong type, are errors."""
+    code = doc_example(DOC.read_text())
+    res = _compile_example(tmp_path, code.replace("cm_irq_handler(&cm)", "cm_irq_service(&cm)"))
+    assert res.returncode != 0 and "cm_irq_service" in res.stderr, res.stderr
+    res = _compile_example(tmp_path, code.replace(
+        "static uint32_t cm_rd(cm_ctx_t *ctx, uint32_t word_addr)",
+        "static uint16_t cm_rd(cm_ctx_t *ctx, uint32_t word_addr)"))
+    assert res.returncode != 0 and "cm_setup" in res.stderr, res.stderr
