@@ -48,8 +48,7 @@ QSYS_TCL = ROOT / "ip" / "reference_system" / "nios2_canopen_qsys.tcl"
 SW_DIR = ROOT / "sw"
 DEVICE, FAMILY = "EP3C80F484C8", "Cyclone III"
 VENV_BIN = Path(sys.executable).parent
-TCLSH = shutil.which("tclsh")
-needs_tclsh = pytest.mark.skipif(TCLSH is None, reason="tclsh not installed")
+TCLSH = shutil.which("tclsh")  # Debian package tcl, installed by make setup
 
 
 def _sub_once(text: str, pattern: str, repl: str) -> str:
@@ -62,6 +61,7 @@ def _run_tcl(tmp_path: Path, harness: str, script: Path, *args: str,
              cwd: Path | None = None) -> list[list[str]]:
     """Source ``script`` after ``harness`` (stub commands that record their calls); returns
     the recorded calls as word lists. A Tcl error fails with its message."""
+    assert TCLSH, "tclsh not found: run make setup (Debian package tcl)"
     h = tmp_path / "harness.tcl"
     h.write_text(harness + "\nset argv [lrange $argv 1 end]\nset argc [llength $argv]\n"
                  "source [lindex $::script_argv 0]\n"
@@ -395,7 +395,6 @@ def sw_problems(calls: list[list[str]], hw_module: dict[str, str], tcl_dir: Path
     return problems
 
 
-@needs_tclsh
 def test_sw_tcl_driver_package(tmp_path):
     calls = _run_tcl(tmp_path, SBT_STUBS, SW_TCL)
     comp = parse_component(HW_TCL.read_text())
@@ -405,7 +404,6 @@ def test_sw_tcl_driver_package(tmp_path):
         "../sw/canopen_master.c"}
 
 
-@needs_tclsh
 def test_sw_tcl_checker_can_fail(tmp_path):
     comp = parse_component(HW_TCL.read_text())
     text = SW_TCL.read_text()
@@ -496,7 +494,6 @@ def quartus_problems(calls: list[list[str]], project_dir: Path, order: list[Path
     return problems
 
 
-@needs_tclsh
 def test_quartus_project_script(tmp_path):
     project = tmp_path / "qproj"
     calls = _run_tcl(tmp_path, QUARTUS_STUBS, QUARTUS_TCL, str(project))
@@ -509,7 +506,6 @@ def test_quartus_project_script(tmp_path):
     assert "PLACEHOLDER" in text and "Replace every set_location_assignment" in text
 
 
-@needs_tclsh
 def test_fusesoc_quartus_target_setup(tmp_path):
     """``fusesoc run --setup --target quartus`` (no Quartus needed): the project script edalize
     writes makes the same assignments as scripts/quartus_project.tcl (run with stubs)."""
@@ -527,7 +523,6 @@ def test_fusesoc_quartus_target_setup(tmp_path):
     assert not problems, "fusesoc quartus target:\n" + "\n".join(problems)
 
 
-@needs_tclsh
 def test_quartus_checker_can_fail(tmp_path):
     """A repository copy with a doctored files.f and pin file; and a missing file in files.f."""
     copy = tmp_path / "repo"
@@ -637,7 +632,6 @@ def qsys_problems(calls: list[list[str]], comp) -> list[str]:
     return problems
 
 
-@needs_tclsh
 def test_qsys_reference_system(tmp_path):
     calls = _run_tcl(tmp_path, QSYS_STUBS, QSYS_TCL)
     comp = parse_component(HW_TCL.read_text())
@@ -648,7 +642,6 @@ def test_qsys_reference_system(tmp_path):
     assert ["set_project_property", "DEVICE", DEVICE] in calls
 
 
-@needs_tclsh
 def test_qsys_checker_can_fail(tmp_path):
     comp = parse_component(HW_TCL.read_text())
     text = QSYS_TCL.read_text()
@@ -709,18 +702,16 @@ def _compile_example(tmp_path: Path, code: str) -> subprocess.CompletedProcess:
     src = tmp_path / "main.c"
     src.write_text(code)
     return subprocess.run(
-        [shutil.which("gcc") or "cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic",
+        [shutil.which("gcc") or "gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic",
          "-fsyntax-only", f"-I{stubs}", f"-I{SW_DIR}", f"-I{SW_DIR / 'include'}", str(src)],
         capture_output=True, text=True, timeout=60, check=False)
 
 
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
 def test_doc_nios2_example_compiles(tmp_path):
     res = _compile_example(tmp_path, doc_example(DOC.read_text()))
     assert res.returncode == 0, res.stderr
 
 
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
 def test_doc_nios2_example_check_can_fail(tmp_path):
     """A HAL function that does not exist, and a callback of the wrong type, are errors."""
     code = doc_example(DOC.read_text())
