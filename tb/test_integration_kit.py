@@ -196,6 +196,68 @@ def test_fusesoc_sim_target_can_fail(tmp_path):
     assert "ID reads 434F3031" in out, out[-3000:]
 
 
+#: a tiny stand-in for canopen_master_top: the synth target's flow (generator, edalize,
+#: yosys) in seconds instead of the real top's minutes
+TINY_TOP = """library ieee;
+    use ieee.std_logic_1164.all;
+
+entity canopen_master_top is
+    port (clk_i : in std_logic; sel_i : in std_logic_vector(1 downto 0);
+          q_o : out std_logic_vector(3 downto 0));
+end entity canopen_master_top;
+
+architecture rtl of canopen_master_top is
+begin
+    reg_proc : process (clk_i) is
+    begin
+        if rising_edge(clk_i) then
+            case sel_i is
+                when "00" => q_o <= "0001";
+                when "01" => q_o <= "0010";
+                when "10" => q_o <= "0100";
+                when others => q_o <= "1000";
+            end case;
+        end if;
+    end process reg_proc;
+end architecture rtl;
+"""
+
+
+def _tiny_repo(root: Path, vhdl: str) -> Path:
+    (root / "rtl").mkdir(parents=True)
+    shutil.copytree(ROOT / "scripts", root / "scripts")
+    shutil.copy(CORE, root / CORE.name)
+    (root / "rtl" / "tiny.vhd").write_text(vhdl)
+    (root / "rtl" / "files.f").write_text("tiny.vhd\n")
+    return root
+
+
+def test_fusesoc_synth_target_flow(tmp_path):
+    """The synth target of canopen_master.core on a tiny stand-in top: the generator writes a
+    Verilog netlist and a core, edalize runs yosys synth_intel, a JSON netlist comes out."""
+    repo = _tiny_repo(tmp_path / "repo", TINY_TOP)
+    build = tmp_path / "build"
+    res = _fusesoc("run", "--build-root", str(build), "--target", "synth", VLNV,
+                   cores_root=repo, cwd=tmp_path)
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    work = build / "canopen_master_ip_canopen_master_1.0" / "synth"
+    assert (work / "canopen_master_ip_canopen_master_1.0.json").stat().st_size > 0
+    log = (work / "yosys.log").read_text()
+    assert "Executing SYNTH_INTEL pass" in log and "/intel/cycloneiv/cells_sim.v" in log
+    assert "canopen_master_top.v" in log  # the generator's netlist
+    cells = dict(re.findall(r"^\s+(cycloneiv_lcell_comb|dffeas)\s+(\d+)$", log, re.M))
+    assert int(cells["dffeas"]) >= 3 and int(cells["cycloneiv_lcell_comb"]) >= 1, cells
+
+
+def test_fusesoc_synth_target_can_fail(tmp_path):
+    """VHDL that GHDL rejects stops the generator, and with it the run."""
+    repo = _tiny_repo(tmp_path / "repo", TINY_TOP.replace("q_o <= \"1000\";", "q_o <= 1000;"))
+    res = _fusesoc("run", "--build-root", str(tmp_path / "build"), "--target", "synth", VLNV,
+                   cores_root=repo, cwd=tmp_path)
+    assert res.returncode != 0
+    assert "ghdl -a failed" in res.stdout + res.stderr, (res.stdout + res.stderr)[-3000:]
+
+
 # ============================================================================ SDC
 @dataclass
 class RtlUnit:
