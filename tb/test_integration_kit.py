@@ -2,8 +2,10 @@
 
 * ``canopen_master.core`` (FuseSoC CAPI=2): the rtl fileset is ``rtl/files.f`` in order, the
   targets name the right tools, device and files; ``fusesoc core list`` / ``core-info`` accept
-  it, and the ``sim`` target runs the VHDL smoke testbench through FuseSoC and edalize on GHDL
-  (a doctored testbench makes that run fail).
+  it, the ``sim`` target runs the VHDL smoke testbench through FuseSoC and edalize on GHDL
+  (a doctored testbench makes that run fail), the ``synth`` target's flow (generator, edalize,
+  yosys) runs on a tiny stand-in top, and ``run --setup`` of the ``quartus`` target writes a
+  project script that makes the same assignments as ``scripts/quartus_project.tcl``.
 * ``ip/canopen_master.sdc``: every register pattern is instance-independent and names a real
   register of the RTL (entity chain, signal, width); every pin synchroniser of the RTL is
   covered.
@@ -18,6 +20,7 @@
 * ``ip/reference_system/nios2_canopen_qsys.tcl``: run in ``tclsh`` with stub qsys-script
   commands: the component and every interface it uses exist in the ``_hw.tcl`` with the right
   kind, clock/reset/s0/irq are connected, mcp2510 exported, no address overlap, distinct IRQs.
+* the Nios II example of ``docs/integration.md`` compiles against ``sw/`` (stub HAL headers).
 
 Each checker returns its findings; the ``*_can_fail`` tests feed doctored copies.
 """
