@@ -4,8 +4,9 @@
 # SPDX-License-Identifier: Apache-2.0
 # =================================================================================================
 # Nios II Software Build Tools (SBT) driver package of the canopen_master component
-# (ip/canopen_master_hw.tcl). The BSP generator finds it next to the _hw.tcl (keep ip/ on the IP
-# search path) and copies the C driver of sw/ into every HAL BSP whose system contains the core.
+# (ip/canopen_master_hw.tcl). The BSP tools find it through --librarian-path "<repo>/ip,$" (or in
+# an ip/ folder under the Quartus project) and copy the C driver of sw/ into every HAL BSP whose
+# system contains the core (docs/integration.md, section 3).
 #
 # The driver is the portable C HAL of sw/ (docs/c_driver.md): it reaches the registers only
 # through the read/write callbacks the application gives it (on Nios II: IORD/IOWR on
