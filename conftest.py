@@ -23,6 +23,7 @@ LONG_FIRST = {
     "tb/test_demo_omni.py": 136,
     "tb/test_sdo_channels_system.py::test_sdo_channels_system[4]": 131,
     "tb/test_omni_system.py::test_omni_system_grid[500k]": 130,
+    "tb/test_c_hal.py::test_c_hal ": 92,
     "tb/test_canopen_autoconfig_system.py": 86,
     "tb/test_omni_system.py::test_omni_system_grid[100k]": 82,
     "tb/test_sdo_channels_system.py::test_sdo_channels_system[2]": 58,

@@ -11,11 +11,13 @@ from it:
   (``<REG>_<FIELD>_HI_C``/``_LO_C`` for fields wider than one bit, ``<REG>_<FIELD>_C`` for
   single bits) and reset words ``<REG>_RESET_C``;
 * ``docs/register_map.md``      the tables for the user;
-* ``tb/tblib/regmap.py``        the same constants for Python drivers and benches.
+* ``tb/tblib/regmap.py``        the same constants for Python drivers and benches;
+* ``sw/include/canopen_master_regs.h``  the same for C (word addresses and byte offsets,
+  per-slot/window address macros, field shifts/masks, reset words), used by the C HAL.
 
 Usage::
 
-    python scripts/regmap.py           # (re)write the three files
+    python scripts/regmap.py           # (re)write the generated files
     python scripts/regmap.py --check   # exit 1 if one of them differs from what it would be
 
 Access types of a field: ``RO`` read only; ``RW`` read/write, stored in the block; ``W1C``

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Idempotent set-up of everything the project needs, from the project's own files:
 #  - Debian packages: GHDL 2.0 with the LLVM back end (+ the mcode default, which we never use),
-#    yosys (synthesis estimates), make, tclsh and gcc (Tcl and C checks of the integration kit),
+#    yosys (synthesis estimates), make, gcc (the C HAL is compiled and tested against the RTL),
+#    tclsh (the Tcl files of the integration kit are run with stub commands),
 #    and what a Debian python3 needs to build the venv and embed Python in the simulator;
 #  - .venv with the pinned Python packages of requirements.txt / requirements.lock.
 # Re-running it is cheap: it only installs what is missing or changed.

@@ -134,7 +134,9 @@ cm_status_t cm_sdo_start_download(cm_ctx_t *ctx, uint8_t chan, uint8_t node, uin
 /** Polled: start an upload on channel chan. */
 cm_status_t cm_sdo_start_upload(cm_ctx_t *ctx, uint8_t chan, uint8_t node, uint16_t index,
                                 uint8_t sub);
-/** Polled: one read of SDO_CMD: CM_PENDING, CM_OK (res->size) or CM_ERR_ABORT (res). */
+/** Polled: one read of SDO_CMD: CM_PENDING, CM_OK (res->size) or CM_ERR_ABORT (res). Only
+    after CM_OK from a start on this channel: after CM_ERR_REFUSED nothing runs and DONE still
+    belongs to the previous transfer. Never looks at REFUSED. */
 cm_status_t cm_sdo_poll(cm_ctx_t *ctx, uint8_t chan, cm_sdo_result_t *res);
 /** Copy n bytes (n <= 256) of channel chan's SDO_BUF into buf. */
 cm_status_t cm_sdo_read_buf(cm_ctx_t *ctx, uint8_t chan, uint8_t *buf, size_t n);

@@ -228,6 +228,7 @@ async def run_guide_through_c(dut):
     assert len(initiates) == 1, "the refused request put a frame on the bus"
     t2 = [r.t_start_ps for r in tb.frames(0x602)[n602:]]
     assert any(t2[0] < r.t_start_ps < t2[-1] for r in tb.frames(0x603)), "no interleaving"
+    tb.dut._log.info("C HAL guide: %d register accesses, %d idle polls", len(hal.log), hal.polls)
     tb.check_models_clean()
     await end_of_test(tb, hal)
 
@@ -425,3 +426,164 @@ def test_c_header_generated_and_checked(tmp_path, monkeypatch):
     copy.write_text(text.replace("CM_SDO_CMD_XFER_SIZE_SHIFT            8u",
                                  "CM_SDO_CMD_XFER_SIZE_SHIFT            9u"))
     assert gen.main(["--check"]) == 1
+
+
+# ------------------------------------------------------------------------------ HAL logic on a
+# register fake (no simulator): the paths the RTL runs do not reach (bad ID/version, bounds,
+# refusals, argument checks), with exact access counts
+class FakeCore:
+    """Read values as a dict (writes are logged, not stored); ``reads[addr]`` (a list)
+    overrides successive reads of ``addr``."""
+
+    def __init__(self, lib: C.CDLL, regs: dict[int, int], max_polls: int = 50) -> None:
+        self.regs = {0x00: R.ID_RESET, 0x01: R.VERSION_RESET, **regs}
+        self.reads: dict[int, list[int]] = {}
+        self.log: list[tuple] = []
+        self.idles = 0
+        self.irqs: list[int] = []
+        self.lib = lib
+        self.ctx = c_hal.CmCtx()
+        self._cbs = (c_hal.WR_FN(self._wr), c_hal.RD_FN(self._rd), c_hal.IDLE_FN(self._idle),
+                     c_hal.IRQ_FN(lambda _c, m: self.irqs.append(m)))
+        lib.cm_setup(C.byref(self.ctx), self._cbs[0], self._cbs[1], self._cbs[2], None)
+        self.ctx.max_polls = max_polls
+
+    def _wr(self, _c, a: int, v: int) -> None:
+        self.log.append(("w", a, v))  # reads keep showing regs (status, not the write)
+
+    def _rd(self, _c, a: int) -> int:
+        self.log.append(("r", a))
+        queue = self.reads.get(a)
+        return queue.pop(0) if queue else self.regs.get(a, 0)
+
+    def _idle(self, _c) -> None:
+        self.idles += 1
+
+    def __call__(self, name: str, *args):
+        return getattr(self.lib, name)(C.byref(self.ctx), *args)
+
+    def count(self, kind: str, addr: int) -> int:
+        return sum(1 for e in self.log if e[0] == kind and e[1] == addr)
+
+
+@pytest.fixture(scope="module")
+def hal_lib(tmp_path_factory):
+    return c_hal.load(c_hal.build(tmp_path_factory.mktemp("c_hal") / "libcm_unit.so"))
+
+
+def test_c_hal_identify_and_init_bounds(hal_lib):
+    """Wrong ID / version are reported without further access; INIT_DONE never coming ends
+    after exactly max_polls reads (CM_ERR_INIT when INIT_FAIL is shown, else CM_ERR_TIMEOUT)."""
+    f = FakeCore(hal_lib, {0x00: 0x12345678})
+    assert f("cm_identify") == c_hal.CM_ERR_ID and f.log == [("r", 0x00)]
+    major, minor = R.VERSION_RESET >> 16, R.VERSION_RESET & 0xFFFF
+    for ver, want in (((major + 1) << 16 | minor, c_hal.CM_ERR_VERSION),
+                      (major << 16 | (minor + 1), c_hal.CM_OK)):
+        assert FakeCore(hal_lib, {0x01: ver})("cm_identify") == want, hex(ver)
+    if minor:
+        assert FakeCore(hal_lib, {0x01: major << 16 | (minor - 1)})("cm_identify") \
+            == c_hal.CM_ERR_VERSION
+    f = FakeCore(hal_lib, {R.REG_SDO_SEL: 2 << 24, R.REG_PDO_INFO: 8 << 8 | 8})
+    assert f("cm_init", 0xFF) == c_hal.CM_ERR_TIMEOUT
+    assert (f.count("r", R.REG_STATUS), f.idles, f.count("w", R.REG_IRQ_ENABLE)) == (50, 50, 0)
+    assert (f.ctx.n_sdo, f.ctx.n_tpdo, f.ctx.n_rpdo) == (2, 8, 8)
+    f = FakeCore(hal_lib, {R.REG_STATUS: R.STATUS_INIT_FAIL})
+    assert f("cm_init", 0xFF) == c_hal.CM_ERR_INIT
+    f = FakeCore(hal_lib, {R.REG_STATUS: R.STATUS_INIT_DONE})
+    assert f("cm_init", 0x84) == c_hal.CM_OK and f.log[-1] == ("w", R.REG_IRQ_ENABLE, 0x84)
+
+
+def test_c_hal_refused_only_right_after_the_command_write(hal_lib):
+    """REFUSED in the first read after the command write -> CM_ERR_REFUSED, no poll; REFUSED
+    seen later while polling DONE is not the HAL's (another writer): ignored. NMT waits for
+    NMT_BUSY at most max_polls reads and then writes nothing."""
+    f = FakeCore(hal_lib, {R.REG_SDO_SEL: 2 << 24})
+    f("cm_identify")
+    f.reads[R.REG_SDO_CMD] = [R.SDO_CMD_REFUSED]
+    assert f("cm_sdo_start_upload", 1, 5, 0x1008, 0) == c_hal.CM_ERR_REFUSED
+    assert f.count("r", R.REG_SDO_CMD) == 1
+    f.reads[R.REG_SDO_CMD] = [0, R.SDO_CMD_REFUSED | R.SDO_CMD_BUSY,
+                              R.SDO_CMD_REFUSED | R.SDO_CMD_DONE | 4 << 8]
+    res = CmSdoResult()
+    data = c_hal.u8_buf(b"\x01\x02\x03\x04")
+    assert f("cm_sdo_download", 1, 5, 0x2000, 1, data, 4, C.byref(res)) == c_hal.CM_OK
+    assert res.size == 4
+    f.log.clear()
+    f.reads[R.REG_NMT_CMD] = [R.NMT_CMD_NMT_BUSY] * 100
+    assert f("cm_nmt", 0x01, 3) == c_hal.CM_ERR_TIMEOUT
+    assert f.count("r", R.REG_NMT_CMD) == 50 and f.count("w", R.REG_NMT_CMD) == 0
+    f.reads[R.REG_NMT_CMD] = [0, R.NMT_CMD_REFUSED]
+    assert f("cm_nmt", 0x01, 3) == c_hal.CM_ERR_REFUSED
+    f.reads[R.REG_ACFG_STATUS] = [R.ACFG_STATUS_REFUSED]
+    assert f("cm_acfg_start", 1) == c_hal.CM_ERR_REFUSED
+
+
+def test_c_hal_sdo_bounds_and_sizes(hal_lib):
+    """A transfer whose DONE never comes ends after max_polls polls (CM_ERR_TIMEOUT); an upload
+    larger than the buffer copies what fits (CM_ERR_SIZE, only those words read); an abort
+    returns the code and who sent it."""
+    f = FakeCore(hal_lib, {R.REG_SDO_SEL: 2 << 24})
+    f("cm_identify")
+    assert f("cm_sdo_start_upload", 0, 3, 0x1008, 0) == c_hal.CM_OK
+    f.log.clear()
+    res = CmSdoResult()
+    buf = (C.c_uint8 * 10)()
+    n = C.c_size_t(0)
+    f.regs[R.REG_SDO_CMD] = R.SDO_CMD_BUSY
+    assert f("cm_sdo_upload", 0, 3, 0x1008, 0, buf, 10, C.byref(n), C.byref(res)) \
+        == c_hal.CM_ERR_TIMEOUT
+    assert f.count("r", R.REG_SDO_CMD) == 1 + 50
+    f.regs[R.REG_SDO_CMD] = R.SDO_CMD_DONE | 100 << 8
+    for w in range(25):
+        f.regs[R.REG_SDO_BUF + w] = int.from_bytes(bytes(range(4 * w, 4 * w + 4)), "little")
+    f.log.clear()
+    assert f("cm_sdo_upload", 0, 3, 0x1008, 0, buf, 10, C.byref(n), C.byref(res)) \
+        == c_hal.CM_ERR_SIZE
+    assert (res.size, n.value, bytes(buf)) == (100, 10, bytes(range(10)))
+    assert sorted({e[1] for e in f.log if e[0] == "r" and e[1] >= R.REG_SDO_BUF}) \
+        == [R.REG_SDO_BUF, R.REG_SDO_BUF + 1, R.REG_SDO_BUF + 2]
+    f.regs[R.REG_SDO_CMD] = R.SDO_CMD_DONE | R.SDO_CMD_ERROR | R.SDO_CMD_ABORT_SENT
+    f.regs[R.REG_SDO_ABORT] = 0x05040000
+    assert f("cm_sdo_upload", 0, 3, 0x1008, 0, buf, 10, C.byref(n), C.byref(res)) \
+        == c_hal.CM_ERR_ABORT
+    assert (res.abort_code, res.abort_sent) == (0x05040000, 1)
+
+
+def test_c_hal_rejects_bad_arguments_without_access(hal_lib):
+    """Out-of-range arguments return CM_ERR_ARG and touch no register."""
+    f = FakeCore(hal_lib, {R.REG_SDO_SEL: 2 << 24, R.REG_PDO_INFO: 8 << 8 | 8})
+    f("cm_identify")
+    f.log.clear()
+    data = c_hal.u8_buf(bytes(300))
+    bad_entry = (CmAcfgEntry * 1)(CmAcfgEntry(3, 0x1017, 0, 5, 10))
+    calls = [("cm_sdo_start_download", 0, 3, 0x1017, 0, data, 0),
+             ("cm_sdo_start_download", 0, 3, 0x1017, 0, data, 257),
+             ("cm_sdo_start_download", 0, 0, 0x1017, 0, data, 2),
+             ("cm_sdo_start_upload", 2, 3, 0x1008, 0),       # channel 2 of 2
+             ("cm_nmt", 0x03, 1), ("cm_nmt", 0x01, 128),
+             ("cm_tpdo_config", 0, 0x203, 9, 1, 0, 0),
+             ("cm_tpdo_config", 0, 0x203, 6, 245, 0, 0),
+             ("cm_tpdo_config", 8, 0x203, 6, 1, 0, 0),       # channel 8 of 8
+             ("cm_rpdo_config", 0, 0x800, 6, 1, 0),
+             ("cm_sync_config", 1000, 1, 0, 1),
+             ("cm_acfg_load", bad_entry, 1, 0),
+             ("cm_node_config", 16, 3, 1, 10, 0, 0), ("cm_node_config", 0, 3, 3, 10, 0, 0)]
+    for name, *args in calls:
+        assert f(name, *args) == c_hal.CM_ERR_ARG, (name, args)
+    assert f.log == []
+
+
+def test_c_hal_irq_handler_and_emcy(hal_lib):
+    """The handler clears exactly the pending enabled bits (W1C) before dispatching them;
+    nothing pending: one read of each register, no write; an empty FIFO pops nothing."""
+    f = FakeCore(hal_lib, {R.REG_IRQ_STATUS: 0x15, R.REG_IRQ_ENABLE: 0x11})
+    f.ctx.on_irq[4] = f._cbs[3]
+    f.ctx.on_irq[2] = f._cbs[3]
+    assert f("cm_irq_handler") == 0x11
+    assert [e for e in f.log if e[0] == "w"] == [("w", R.REG_IRQ_STATUS, 0x11)]
+    assert f.irqs == [0x10]
+    f = FakeCore(hal_lib, {R.REG_IRQ_STATUS: 0x04, R.REG_IRQ_ENABLE: 0x10})
+    assert f("cm_irq_handler") == 0 and len(f.log) == 2
+    emcy = c_hal.CmEmcy()
+    assert f("cm_emcy_pop", C.byref(emcy)) == c_hal.CM_ERR_EMPTY
+    assert [e for e in f.log if e[0] == "w"] == []
