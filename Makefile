@@ -7,6 +7,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.requirements.sha256
 RTL    := $(shell sed -e 's/\#.*//' -e '/^[[:space:]]*$$/d' -e 's|^|rtl/|' rtl/files.f)
+TB_VHD := $(wildcard tb/vhdl/*.vhd)
 PYDIRS := tb sim_models scripts
 
 .PHONY: help setup test demo lint synth-check synth bench fuzz waves docs drift-report clean
@@ -35,9 +36,9 @@ demo: $(STAMP)
 
 # VSG exits 0 on warnings; any reported line (error or warning) fails the lint here
 lint: $(STAMP)
-	@out=$$($(VENV)/bin/vsg -c scripts/vsg.yaml -of syntastic -f $(RTL)); \
+	@out=$$($(VENV)/bin/vsg -c scripts/vsg.yaml -of syntastic -f $(RTL) $(TB_VHD)); \
 	  if [ -n "$$out" ]; then echo "$$out"; echo "VSG: violations above"; exit 1; fi; \
-	  echo "VSG: $(words $(RTL)) files clean"
+	  echo "VSG: $(words $(RTL) $(TB_VHD)) files clean"
 	$(VENV)/bin/ruff check $(PYDIRS)
 
 synth-check: $(STAMP)

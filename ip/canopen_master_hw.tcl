@@ -48,6 +48,7 @@ set_module_property VALIDATION_CALLBACK          validate
 # library the generated system chooses (add_fileset_file has no documented per-file library
 # argument); see "VHDL library" in docs/platform_designer.md.
 # VHDL-2008: set VHDL_INPUT_VERSION VHDL_2008 in the Quartus project (the .qsf).
+# QUARTUS_SYNTH also carries canopen_master.sdc (false paths of the reset and pin synchronisers).
 # -------------------------------------------------------------------------------------------------
 add_fileset QUARTUS_SYNTH QUARTUS_SYNTH "" ""
 set_fileset_property QUARTUS_SYNTH TOP_LEVEL                     canopen_master_top
@@ -71,6 +72,8 @@ add_fileset_file canopen_master_fsm.vhd   VHDL PATH ../rtl/canopen_master_fsm.vh
 add_fileset_file canopen_host_regs.vhd    VHDL PATH ../rtl/canopen_host_regs.vhd
 add_fileset_file canopen_master_core.vhd  VHDL PATH ../rtl/canopen_master_core.vhd
 add_fileset_file canopen_master_top.vhd   VHDL PATH ../rtl/canopen_master_top.vhd TOP_LEVEL_FILE
+# timing exceptions of the core's synchronisers (register names, independent of the instance name)
+add_fileset_file canopen_master.sdc       SDC  PATH canopen_master.sdc
 
 add_fileset SIM_VHDL SIM_VHDL "" ""
 set_fileset_property SIM_VHDL TOP_LEVEL                     canopen_master_top

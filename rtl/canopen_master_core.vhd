@@ -964,6 +964,7 @@ begin
             rx_match_o      => sdo_rx_match,
             rx_valid_i      => enter_sdo,
             rx_id_i         => rx_frame.id,
+            rx_rtr_i        => rx_frame.rtr,
             rx_dlc_i        => rx_frame.dlc,
             rx_data_i       => rx_frame.data,
             rx_done_o       => sdo_rx_done,

@@ -343,7 +343,7 @@ package canopen_regs_pkg is
     constant SDO_ABORT_CODE_LO_C : natural := 0;
 
     -- SDO_TIMEOUT_MS
-    constant SDO_TIMEOUT_MS_VALUE_HI_C : natural := 15; -- RW: timeout in ms
+    constant SDO_TIMEOUT_MS_VALUE_HI_C : natural := 15; -- RW
     constant SDO_TIMEOUT_MS_VALUE_LO_C : natural := 0;
 
     -- SDO_COB

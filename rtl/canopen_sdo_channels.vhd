@@ -20,8 +20,8 @@
 --     accepted request on that channel.
 --   * Owner port: while own_i = 1 channel 0 belongs to canopen_autoconfig (default COB-IDs,
 --     600h/580h + node). Its request waits (never refused) until no other channel talks to the
---     same node; every other channel's transfer ends within its timeout, so the wait is bounded
---     whenever SDO_TIMEOUT_MS /= 0. Channel 0's done strobe goes to the owner, not to the host.
+--     same node; every other channel's transfer ends within its bound (canopen_sdo_client), so
+--     the wait is bounded. Channel 0's done strobe goes to the owner, not to the host.
 --   * Transmit: the channels' frames are taken in round-robin order. tx_req_o shows the request
 --     of the channel that tx_sel points at; tx_sel only moves (to the next requesting channel)
 --     in a cycle where its own request is low, so the frame the FSM copies in St11 and the
@@ -102,6 +102,7 @@ entity canopen_sdo_channels is
         rx_match_o      : out   std_logic;                     -- rx_id_i = a running response
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
         rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
+        rx_rtr_i        : in    std_logic;                     -- remote frame
         rx_dlc_i        : in    std_logic_vector(3 downto 0);  -- data length code
         rx_data_i       : in    std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
         rx_done_o       : out   std_logic;                     -- strobe: frame processed
@@ -362,6 +363,7 @@ begin
                     tx_ack_i        => c_tx_ack(c),
                     rx_valid_i      => c_rx_valid(c),
                     rx_id_i         => rx_id_i,
+                    rx_rtr_i        => rx_rtr_i,
                     rx_dlc_i        => rx_dlc_i,
                     rx_data_i       => rx_data_i,
                     rx_done_o       => c_rx_done(c),
@@ -408,6 +410,7 @@ begin
                     tx_ack_i        => c_tx_ack(c),
                     rx_valid_i      => c_rx_valid(c),
                     rx_id_i         => rx_id_i,
+                    rx_rtr_i        => rx_rtr_i,
                     rx_dlc_i        => rx_dlc_i,
                     rx_data_i       => rx_data_i,
                     rx_done_o       => c_rx_done(c),

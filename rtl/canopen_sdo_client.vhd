@@ -19,8 +19,14 @@
 --     also for a DLC other than 8), multiplexer of an initiate response (0800 0000h), toggle bit
 --     (0503 0000h), indicated or received size above BUF_BYTES (0504 0005h), received total
 --     different from the indicated size (0607 0010h), no response within timeout_ms_i
---     (0504 0000h). A server abort with our multiplexer ends the transfer with its code. A
---     transfer ends (done_o) once its abort frame has been taken.
+--     (0504 0000h; timeout_ms_i = 0 means TIMEOUT_DEF_MS), more than EMPTY_SEGS_MAX upload
+--     segments with c = 0 and no data (0800 0000h). A server abort with our multiplexer ends
+--     the transfer with its code. A transfer ends (done_o) once its abort frame has been taken.
+--   * Liveness: every wait has a timeout and every transfer a bounded number of requests
+--     (download: one per 7 bytes; upload: every segment but EMPTY_SEGS_MAX of them carries a
+--     byte, and at most BUF_BYTES are accepted), so every transfer ends within a bound
+--     (docs/canopen_sdo_client.md, "Bounds"). A remote frame (rx_rtr_i) is never a response:
+--     it is flagged unexpected and changes nothing.
 --   * Transfer buffer: BUF_BYTES bytes in four byte lanes (bytes 4w+k in lane k), each a simple
 --     dual-port RAM with a registered read (M9K). The host reads and writes 32-bit words; the
 --     client reads 7 bytes for the next download segment in two cycles (prefetched while the
@@ -39,7 +45,9 @@ library work;
 
 entity canopen_sdo_client is
     generic (
-        BUF_BYTES : positive range 8 to 1024 := 256 -- transfer buffer size [bytes], power of 2
+        BUF_BYTES      : positive range 8 to 1024  := 256;  -- transfer buffer [bytes], power of 2
+        TIMEOUT_DEF_MS : positive range 1 to 65535 := 1000; -- timeout used for timeout_ms_i = 0
+        EMPTY_SEGS_MAX : natural range 0 to 255    := 3     -- empty non-final upload segments
     );
     port (
         -- clock and reset
@@ -55,7 +63,7 @@ entity canopen_sdo_client is
         req_size_i     : in    std_logic_vector(10 downto 0); -- download: bytes to send
         cob_req_i      : in    std_logic_vector(10 downto 0); -- client->server, 0 = 600h+node
         cob_resp_i     : in    std_logic_vector(10 downto 0); -- server->client, 0 = 580h+node
-        timeout_ms_i   : in    std_logic_vector(15 downto 0); -- per response [ms], 0 = none
+        timeout_ms_i   : in    std_logic_vector(15 downto 0); -- per wait [ms], 0 = TIMEOUT_DEF_MS
         -- status
         busy_o       : out   std_logic;                     -- a transfer is running
         done_o       : out   std_logic;                     -- strobe: transfer ended
@@ -77,6 +85,7 @@ entity canopen_sdo_client is
         -- received frame (from the FSM)
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
         rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
+        rx_rtr_i        : in    std_logic;                     -- remote frame (never ours)
         rx_dlc_i        : in    std_logic_vector(3 downto 0);  -- data length code
         rx_data_i       : in    std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
         rx_done_o       : out   std_logic;                     -- strobe: frame processed
@@ -280,12 +289,15 @@ architecture rtl of canopen_sdo_client is
     -- response timeout: value of the transfer [ms] and ms ticks left
     signal tmo_ms  : unsigned(15 downto 0);
     signal tmo_cnt : unsigned(15 downto 0);
+    -- upload: segments with c = 0 and no data received so far in this transfer
+    signal empty_cnt : natural range 0 to EMPTY_SEGS_MAX;
     -- frame towards the FSM
     signal tx_req  : std_logic;
     signal tx_data : std_logic_vector(63 downto 0);
     -- received frame waiting to be processed
     signal rx_pend   : std_logic;
     signal rx_id_q   : std_logic_vector(10 downto 0);
+    signal rx_rtr_q  : std_logic;
     signal rx_dlc_q  : std_logic_vector(3 downto 0);
     signal rx_data_q : std_logic_vector(63 downto 0);
     -- rx strobes
@@ -476,6 +488,7 @@ begin
             ind_size     <= (others => '0');
             tmo_ms       <= (others => '0');
             tmo_cnt      <= (others => '0');
+            empty_cnt    <= 0;
             tx_req       <= '0';
             rx_pend      <= '0';
             rx_done_q    <= '0';
@@ -504,10 +517,11 @@ begin
             tgl_v      := '0';
 
             -- response timer: expires at the (timeout + 1)-th ms tick, i.e. after at least
-            -- timeout_ms_i ms; every frame built and every tx_ack_i reloads it
+            -- timeout_ms_i ms; every frame built and every tx_ack_i reloads it (tmo_ms is never
+            -- 0: timeout_ms_i = 0 loads TIMEOUT_DEF_MS)
             tmo_exp := false;
 
-            if tick_ms_i = '1' and tmo_ms /= 0 then
+            if tick_ms_i = '1' then
                 if tmo_cnt = 0 then
                     tmo_exp := true;
                 else
@@ -563,8 +577,9 @@ begin
                 rx_pend   <= '0';
                 rx_done_q <= '1';
 
-                if not is_wait or rx_id_q /= cob_rx then
-                    -- idle, no response expected now, or another node: not ours
+                if not is_wait or rx_id_q /= cob_rx or rx_rtr_q = '1' then
+                    -- idle, no response expected now, another node, or a remote frame (a
+                    -- request, never a response): not ours
                     rx_unexp_q <= '1';
                 elsif rx_dlc_q /= sdo_dlc_c then
                     do_abort := true;
@@ -665,6 +680,12 @@ begin
                             elsif cmd(sdo_t_bit_c) /= toggle then
                                 do_abort := true;
                                 abort_v  := SDO_ABORT_TOGGLE_C;
+                            elsif cmd(sdo_c_bit_c) = '0' and cnt = 0
+                                  and empty_cnt = EMPTY_SEGS_MAX then
+                                -- one more segment without data and without an end: the server
+                                -- keeps the transfer alive without progress
+                                do_abort := true;
+                                abort_v  := SDO_ABORT_GENERAL_C;
                             elsif size_known = '1' and total > ind_size then
                                 do_abort := true;
                                 abort_v  := SDO_ABORT_LENGTH_C;
@@ -687,6 +708,10 @@ begin
                                 else
                                     do_ul_seg := true;
                                     tgl_v     := not toggle;
+
+                                    if cnt = 0 then
+                                        empty_cnt <= empty_cnt + 1;
+                                    end if;
                                 end if;
                             end if;
 
@@ -708,8 +733,7 @@ begin
                         upload       <= req_upload_i;
                         idx          <= req_index_i;
                         sub          <= req_subindex_i;
-                        tmo_ms       <= unsigned(timeout_ms_i);
-                        tmo_cnt      <= unsigned(timeout_ms_i);
+                        empty_cnt    <= 0;
                         error_q      <= '0';
                         abort_code_q <= (others => '0');
                         abort_sent_q <= '0';
@@ -719,6 +743,15 @@ begin
                         size_known   <= '0';
                         last_seg     <= '0';
                         toggle       <= '0';
+
+                        -- every wait is bounded: 0 selects the default timeout
+                        if unsigned(timeout_ms_i) = 0 then
+                            tmo_ms  <= to_unsigned(TIMEOUT_DEF_MS, 16);
+                            tmo_cnt <= to_unsigned(TIMEOUT_DEF_MS, 16);
+                        else
+                            tmo_ms  <= unsigned(timeout_ms_i);
+                            tmo_cnt <= unsigned(timeout_ms_i);
+                        end if;
 
                         if unsigned(cob_req_i) = 0 then
                             cob_tx <= cob_id(FC_SDO_RX_C, req_node_i);
@@ -909,6 +942,7 @@ begin
             if rx_valid_i = '1' then
                 rx_pend   <= '1';
                 rx_id_q   <= rx_id_i;
+                rx_rtr_q  <= rx_rtr_i;
                 rx_dlc_q  <= rx_dlc_i;
                 rx_data_q <= rx_data_i;
             end if;

@@ -234,7 +234,8 @@ REGISTERS: tuple[Register, ...] = (
     R("SDO_ABORT", 0x72, "RO", "SDO abort code of the last transfer",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code")),
     R("SDO_TIMEOUT_MS", 0x73, "RW", "SDO response timeout",
-      F("VALUE", "15:0", "RW", 1000, "timeout in ms")),
+      F("VALUE", "15:0", "RW", 1000, "timeout in ms of every wait of a transfer (request "
+                                     "taken, response), latched at SDO_CMD; 0 = 1000 ms")),
     R("SDO_COB", 0x74, "RW", "SDO COB-IDs",
       F("REQUEST", "10:0", "RW", 0, "client -> server COB-ID, 0 = 600h + node"),
       F("RESPONSE", "26:16", "RW", 0, "server -> client COB-ID, 0 = 580h + node")),

@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Idempotent set-up of everything the project needs, from the project's own files:
 #  - Debian packages: GHDL 2.0 with the LLVM back end (+ the mcode default, which we never use),
-#    yosys (synthesis estimates), make, gcc (the C HAL is compiled and tested against the RTL)
+#    yosys (synthesis estimates), make, gcc (the C HAL is compiled and tested against the RTL),
+#    tclsh (the Tcl files of the integration kit are run with stub commands),
 #    and what a Debian python3 needs to build the venv and embed Python in the simulator;
 #  - .venv with the pinned Python packages of requirements.txt / requirements.lock.
 # Re-running it is cheap: it only installs what is missing or changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PACKAGES=(ghdl ghdl-llvm yosys make gcc)
+APT_PACKAGES=(ghdl ghdl-llvm yosys make tcl gcc)
 PYTHON=${PYTHON:-python3}
 if [ "$(command -v "$PYTHON")" = /usr/bin/python3 ]; then
     APT_PACKAGES+=(python3-venv libpython3-dev)

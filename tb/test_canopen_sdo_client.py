@@ -137,6 +137,8 @@ class TB:
     def __init__(self, dut, *, direct: bool = False, ack_node: bool = False) -> None:
         self.dut = dut
         self.buf_bytes = param("BUF_BYTES")
+        self.timeout_def_ms = param("TIMEOUT_DEF_MS")
+        self.empty_segs_max = param("EMPTY_SEGS_MAX")
         self.direct = direct
         start_clock(dut.clk_i, CLK_HZ)
         self.sched = Scheduler()
@@ -166,8 +168,8 @@ class TB:
         for sig in (dut.tick_ms_i, dut.req_valid_i, dut.req_upload_i, dut.req_node_i,
                     dut.req_index_i, dut.req_subindex_i, dut.req_size_i, dut.cob_req_i,
                     dut.cob_resp_i, dut.timeout_ms_i, dut.buf_addr_i, dut.buf_we_i,
-                    dut.buf_wdata_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_dlc_i,
-                    dut.rx_data_i):
+                    dut.buf_wdata_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_rtr_i,
+                    dut.rx_dlc_i, dut.rx_data_i):
             sig.value = 0
         cocotb.start_soon(self._ticker())
         cocotb.start_soon(self._tx_taker())
@@ -243,7 +245,7 @@ class TB:
                     continue
             await FallingEdge(dut.clk_i)
             state_before = int(dut.state_o.value)
-            _, latency = await hand_over_frame(dut, msg, self.max_rx_latency, has_rtr=False)
+            _, latency = await hand_over_frame(dut, msg, self.max_rx_latency)
             rec = RxRecord(sim_time_ps(), msg, latency, int(dut.rx_reply_o.value),
                            int(dut.rx_unexpected_o.value), state_before,
                            int(dut.state_o.value))
@@ -579,7 +581,8 @@ async def run_timeouts(dut):
     the request was taken; a segmented download whose server disappears after two segments
     ends the same way after the third segment; when the FSM never takes the request the
     transfer ends after the timeout with 0504 0000h, tx_req_o withdrawn and no frame sent;
-    timeout_ms_i = 0 waits without limit.
+    timeout_ms_i = 0 is bounded too: it uses TIMEOUT_DEF_MS (abort 0504 0000h on the bus
+    between TIMEOUT_DEF_MS and TIMEOUT_DEF_MS + 1 ms after the request was taken).
     """
     tb = TB(dut, ack_node=True)
     await tb.start()
@@ -628,12 +631,162 @@ async def run_timeouts(dut):
     await Timer(200, "us")
     assert len(tb.bus_frames_from_master()) == n_bus
 
-    # timeout 0: still waiting after 8 ms
-    n_done = tb.done_count
-    await tb.request(upload=True, index=0x1000, timeout_ms=0)
-    await Timer(8, "ms")
-    assert dut.busy_o.value == 1 and tb.done_count == n_done
-    assert len(tb.tx_log[-1][1].data) == 8 and tb.tx_log[-1][1].data[0] == 0x40
+    # timeout 0: the default timeout TIMEOUT_DEF_MS bounds the wait
+    tdef = tb.timeout_def_ms
+    res = await tb.upload(0x1000, timeout_ms=0, limit_ms=tdef + 5)
+    check_abort(res, ABORT_TIMEOUT, sent=True, size=0)
+    check_frames(res, expected_upload(0x1000, 0, 0) + [abort_frame(0x1000, 0, ABORT_TIMEOUT)])
+    waited = res.tx_times[1] - res.tx_times[0]
+    assert tdef * PS_PER_MS < waited <= (tdef + 1) * PS_PER_MS + 10 * CLK_PS, \
+        f"timeout 0 waited {waited} ps, TIMEOUT_DEF_MS = {tdef}"
+    await tb.wait_bus_frame(res, abort_frame(0x1000, 0, ABORT_TIMEOUT))
+    dut._log.info(f"timeout_ms_i = 0: abort after {waited / PS_PER_MS:.3f} ms "
+                  f"(TIMEOUT_DEF_MS = {tdef})")
+
+
+class StallingServer(QueueNode):
+    """A misbehaving SDO server (node ``node``, bench-only) for the liveness checks.
+
+    It answers an initiate upload with "segmented, size ``size``" and every upload segment
+    request with the next entry of ``script``: ``(data, last)`` gives a segment with those
+    bytes and c = ``last``; once the script is used up it answers with empty non-final
+    segments (n = 7, c = 0) for ever, always with the request's toggle bit. Abort frames it
+    receives are recorded in ``aborts``.
+    """
+
+    def __init__(self, node: int, size: int, script: list[tuple[bytes, bool]]) -> None:
+        super().__init__(f"stall{node}", BITRATE)
+        self.node = node
+        self.size = size
+        self.script = list(script)
+        self.segments = 0  #: segment responses sent
+        self.aborts: list[int] = []
+
+    def on_rx(self, msg: can.Message, t_ps: int) -> None:
+        super().on_rx(msg, t_ps)
+        if msg.is_remote_frame or msg.arbitration_id != 0x600 + self.node or msg.dlc != 8:
+            return
+        cmd = msg.data[0]
+        if cmd >> 5 == 2:  # initiate upload: segmented, size indicated
+            self.send(make_message(0x580 + self.node, bytes([0x41]) + bytes(msg.data[1:4])
+                                   + struct.pack("<L", self.size)))
+        elif cmd >> 5 == 3:  # upload segment
+            data, last = self.script.pop(0) if self.script else (b"", False)
+            self.segments += 1
+            byte0 = (cmd & 0x10) | (7 - len(data)) << 1 | int(last)
+            self.send(make_message(0x580 + self.node, bytes([byte0]) + data.ljust(7, b"\0")))
+        elif cmd >> 5 == 4:
+            self.aborts.append(struct.unpack_from("<L", bytes(msg.data), 4)[0])
+
+
+def transfer_bound_ms(requests: int, timeout_ms: int) -> int:
+    """The documented bound of a transfer with ``requests`` request frames (docs, Bounds):
+    each request waits at most T + 1 ms to be taken and T + 1 ms for its response, the
+    closing abort frame at most T + 1 ms to be taken."""
+    return (2 * requests + 1) * (timeout_ms + 1)
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_empty_segment_server(dut):
+    """Purpose: a server that keeps an upload alive with empty segments cannot hold the client.
+
+    Verifies: against a server answering every upload segment request of a 7-byte object with
+    an empty non-final segment (n = 7, c = 0), the client accepts EMPTY_SEGS_MAX such segments
+    and aborts at the next one with 0800 0000h: exact frame sequence, the abort frame on the
+    bus and received by the server, size_o = 0, the transfer ends within the documented bound;
+    the client then accepts and completes a new transfer (1008h from node 5). EMPTY_SEGS_MAX
+    empty segments followed by the data are accepted (the 7 bytes land in the buffer); the
+    limit counts every empty segment of the transfer, not only consecutive ones.
+    """
+    tb = TB(dut)
+    await tb.start()
+    emax = tb.empty_segs_max
+    value = bytes(range(0x41, 0x48))  # 7 bytes
+    stall = StallingServer(9, len(value), [])
+    tb.bus.attach(stall)
+
+    res = await tb.upload(0x2100, node=9, timeout_ms=5)
+    check_abort(res, ABORT_GENERAL, sent=True, size=0)
+    check_frames(res, expected_upload(0x2100, 0, emax + 1)
+                 + [abort_frame(0x2100, 0, ABORT_GENERAL)], cob=0x609)
+    assert stall.segments == emax + 1
+    await tb.wait_bus_frame(res, abort_frame(0x2100, 0, ABORT_GENERAL))
+    await tb.wait_for(lambda: stall.aborts == [ABORT_GENERAL], 200)
+    took = res.t_done_ps - res.t_req_ps
+    assert took <= transfer_bound_ms(emax + 2, 5) * PS_PER_MS, f"took {took} ps"
+    dut._log.info(f"empty-segment server: abort 0800 0000h after {emax + 1} empty segments, "
+                  f"{took / PS_PER_MS:.3f} ms after the request")
+
+    # the channel takes the next transfer
+    name = tb.slave.read_raw(0x1008)
+    res = await tb.upload(0x1008)
+    check_ok(res, len(name))
+    check_data(await tb.read_buf(len(name)), name, "1008h after the aborted upload")
+
+    # EMPTY_SEGS_MAX empty segments, then the data: accepted
+    stall.script = [(b"", False)] * emax + [(value, True)]
+    stall.segments = 0
+    await tb.write_buf(bytes(8))
+    res = await tb.upload(0x2100, node=9, timeout_ms=5)
+    check_ok(res, len(value))
+    check_frames(res, expected_upload(0x2100, 0, emax + 1), cob=0x609)
+    check_data(await tb.read_buf(8), value + b"\0", "upload after empty segments")
+
+    # empty segments spread over the transfer: the (EMPTY_SEGS_MAX + 1)-th one aborts
+    two = bytes(range(0x61, 0x6F))  # 14 bytes
+    stall.size = len(two)
+    stall.script = [(b"", False), (two[:7], False)] + [(b"", False)] * emax + [(two[7:], True)]
+    stall.aborts.clear()
+    res = await tb.upload(0x2100, node=9, timeout_ms=5)
+    check_abort(res, ABORT_GENERAL, sent=True, size=7)
+    check_frames(res, expected_upload(0x2100, 0, emax + 2)
+                 + [abort_frame(0x2100, 0, ABORT_GENERAL)], cob=0x609)
+    await tb.wait_for(lambda: stall.aborts == [ABORT_GENERAL], 200)
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_rtr_on_response_cob(dut):
+    """Purpose: a remote frame with the transfer's response COB-ID is not a response.
+
+    Verifies: during a segmented upload of 1008h from node 5, an RTR on 585h with DLC 0 while
+    the initiate response is awaited and an RTR on 585h with DLC 8 while a segment response
+    is awaited (its all-zero data would read as a valid segment t = 0, n = 0, c = 0) are each
+    answered rx_done_o with rx_unexpected_o, no reply, no state change (the checker of every
+    frame); the transfer completes with all 71 bytes and no abort frame is sent; an RTR while
+    idle is unexpected too.
+    """
+    tb = TB(dut)
+    await tb.start()
+
+    def rtr(dlc: int) -> can.Message:
+        return can.Message(arbitration_id=0x580 + NODE, is_extended_id=False,
+                           is_remote_frame=True, dlc=dlc)
+
+    name = tb.slave.read_raw(0x1008)
+    n_rx = len(tb.rx_log)
+    n_tx0 = len(tb.tx_log)
+    t_req = sim_time_ps()
+    await tb.request(upload=True, index=0x1008)
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx0, 100, step_us=1)
+    tb.inject(rtr(0))  # initiate upload response awaited
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx0 + 1, 1000, step_us=1)
+    await FallingEdge(dut.clk_i)
+    assert int(dut.state_o.value) == 9, "not in S_UL_SEG_WAIT for the first segment"
+    tb.inject(rtr(8))  # first segment response (t = 0) awaited
+    res = await tb.wait_done(n_tx0, t_req)
+    check_ok(res, len(name))
+    check_frames(res, expected_upload(0x1008, 0, n_upload_segments(len(name))))
+    check_data(await tb.read_buf(len(name)), name, "1008h with RTRs in between")
+    remote = [r for r in tb.rx_log[n_rx:] if r.msg.is_remote_frame]
+    assert len(remote) == 2, remote
+    assert all(r.unexpected == 1 and r.reply == 0 for r in remote)
+    assert [r.state_before for r in remote] == [7, 9]  # S_UL_INIT_WAIT, S_UL_SEG_WAIT
+    assert sum(r.unexpected for r in tb.rx_log[n_rx:]) == 2
+
+    tb.inject(rtr(8))  # idle
+    await tb.wait_for(lambda: len(tb.rx_log) > n_rx + len(res.frames) + 2, 100, step_us=1)
+    last = tb.rx_log[-1]
+    assert last.msg.is_remote_frame and last.unexpected == 1 and last.state_after == 0
 
 
 @cocotb.test(timeout_time=100, timeout_unit="ms")
@@ -871,4 +1024,6 @@ async def run_frame_checker_can_fail(dut):
 @pytest.mark.sim
 def test_canopen_sdo_client(request):
     run_cocotb(toplevel="canopen_sdo_client", module="tb.test_canopen_sdo_client",
-               name=request.node.name, parameters={"BUF_BYTES": 256})
+               name=request.node.name,
+               # a short default timeout keeps the timeout_ms_i = 0 case fast
+               parameters={"BUF_BYTES": 256, "TIMEOUT_DEF_MS": 12, "EMPTY_SEGS_MAX": 3})

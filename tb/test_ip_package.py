@@ -299,9 +299,14 @@ def generic_problems(comp: Component, generics: list[Generic]) -> list[str]:
     return problems
 
 
+#: non-VHDL files each fileset must carry: output name -> (type, source path)
+FILESET_EXTRAS = {"QUARTUS_SYNTH": {"canopen_master.sdc": ("SDC", "canopen_master.sdc")},
+                  "SIM_VHDL": {}}
+
+
 def fileset_problems(comp: Component, order: list[Path]) -> list[str]:
     """Each fileset must list ``order`` (rtl/files.f) exactly, as VHDL from ../rtl/, with the
-    top level file and entity marked."""
+    top level file and entity marked, plus exactly its ``FILESET_EXTRAS`` (the component SDC)."""
     expected = [p.name for p in order]
     problems = []
     for name in FILESETS:
@@ -314,14 +319,22 @@ def fileset_problems(comp: Component, order: list[Path]) -> list[str]:
         if fs.props.get("TOP_LEVEL") != TOP_ENTITY:
             problems.append(f"fileset {name}: TOP_LEVEL {fs.props.get('TOP_LEVEL')}, "
                             f"expected {TOP_ENTITY}")
-        listed = [f[0] for f in fs.files]
+        vhdl = [f for f in fs.files if len(f) > 1 and f[1] == "VHDL"]
+        extras = {f[0]: (f[1], f[3]) for f in fs.files
+                  if len(f) >= 4 and f[1] != "VHDL" and f[2] == "PATH"}
+        if len(extras) + len(vhdl) != len(fs.files):
+            problems.append(f"fileset {name}: unreadable add_fileset_file lines")
+        if extras != FILESET_EXTRAS[name]:
+            problems.append(f"fileset {name}: non-VHDL files {extras}, expected "
+                            f"{FILESET_EXTRAS[name]}")
+        listed = [f[0] for f in vhdl]
         if listed != expected:
             problems.append(f"fileset {name} lists {listed}, rtl/files.f has {expected}")
-        for f in fs.files:
+        for f in vhdl:
             if len(f) < 4 or f[1:3] != ["VHDL", "PATH"] or f[3] != f"../rtl/{f[0]}":
                 problems.append(f"fileset {name}: expected '{f[0]} VHDL PATH ../rtl/{f[0]}', "
                                 f"got {' '.join(f)}")
-        tops = [f[0] for f in fs.files if "TOP_LEVEL_FILE" in f[4:]]
+        tops = [f[0] for f in vhdl if "TOP_LEVEL_FILE" in f[4:]]
         if tops != [f"{TOP_ENTITY}.vhd"]:
             problems.append(f"fileset {name}: TOP_LEVEL_FILE on {tops}, expected "
                             f"[{TOP_ENTITY}.vhd]")
@@ -515,6 +528,8 @@ def test_checks_can_fail():
     swapped = swapped.replace("add_fileset_file @@ ", f"add_fileset_file {second} ")
     problems = all_problems(swapped, vhdl, order)
     assert any(p.startswith("fileset QUARTUS_SYNTH lists") for p in problems), problems
+    problems = all_problems(_drop_line(tcl, r"add_fileset_file canopen_master\.sdc "), vhdl, order)
+    assert any(p.startswith("fileset QUARTUS_SYNTH: non-VHDL files {}") for p in problems)
 
     # Avalon and associations: a waitrequest role, variable latency, a dangling association
     bad = _sub_once(tcl, r"^(set_interface_property s0 readLatency\s+)1", r"\g<1>0")

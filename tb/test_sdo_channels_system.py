@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import os
 import random
+import struct
 
+import can
 import cocotb
 import pytest
 from cocotb.triggers import Combine, Timer
 
-from sim_models.canopen_slave import NmtState
-from sim_models.sim_time import PS_PER_US
+from sim_models.can_bus import QueueNode
+from sim_models.canopen_slave import NmtState, make_message
+from sim_models.sim_time import PS_PER_MS, PS_PER_US
 from tb.tblib import regmap as R
 from tb.tblib.host_driver import SdoAbort, SdoRefused
 from tb.tblib.metrics import record
@@ -33,6 +36,7 @@ SYSTEM = {"CLK_FREQ_HZ": 20_000_000, "SPI_SCLK_HZ": 5_000_000, "OSC_FREQ_HZ": 16
 #: the drives' DOMAIN object (segmented transfers of any length)
 DOMAIN = 0x2000
 ABORT_TIMEOUT = 0x05040000
+ABORT_GENERAL = 0x08000000
 
 
 def interleaved(tb: SystemTB, a: int, b: int) -> bool:
@@ -219,6 +223,82 @@ async def run_sdo_simultaneous_aborts_counted(dut):
         aborts = [r for r in tb.frames(0x600 + node) if r.msg.data[0] == 0x80]
         assert len(aborts) == 1, node
     assert (await host.counters())["sdo_abort"] == n
+    tb.check_models_clean()
+    await Timer(1, "ns")
+
+
+class EmptySegmentServer(QueueNode):
+    """A misbehaving SDO server (node ``node``): it answers an initiate upload with
+    "segmented, 7 bytes" and every upload segment request with an empty non-final segment
+    (n = 7, c = 0, the request's toggle bit), for ever. Abort codes it receives go to
+    ``aborts``."""
+
+    def __init__(self, node: int, bitrate: int) -> None:
+        super().__init__(f"stall{node}", bitrate)
+        self.node = node
+        self.segments = 0
+        self.aborts: list[int] = []
+
+    def on_rx(self, msg: can.Message, t_ps: int) -> None:
+        super().on_rx(msg, t_ps)
+        if msg.is_remote_frame or msg.arbitration_id != 0x600 + self.node:
+            return
+        cmd = msg.data[0]
+        if cmd >> 5 == 2:
+            self.send(make_message(0x580 + self.node, bytes([0x41]) + bytes(msg.data[1:4])
+                                   + struct.pack("<L", 7)))
+        elif cmd >> 5 == 3:
+            self.segments += 1
+            self.send(make_message(0x580 + self.node, bytes([(cmd & 0x10) | 0x0E]) + bytes(7)))
+        elif cmd >> 5 == 4:
+            self.aborts.append(struct.unpack_from("<L", bytes(msg.data), 4)[0])
+
+
+@cocotb.test(timeout_time=200, timeout_unit="ms")
+async def run_sdo_liveness_and_rtr(dut):
+    """Purpose: a misbehaving server cannot hold a channel; RTRs are not SDO responses.
+
+    Verifies: an upload from a server that answers every segment request with an empty
+    non-final segment ends with the master's abort 0800 0000h after 4 such segments (the
+    client's EMPTY_SEGS_MAX = 3 tolerated), the abort frame is on the bus and reaches the
+    server, CNT_SDO_ABORT counts it, and the same channel then completes an upload of node 1's
+    1008h while a raw node sends two RTR frames on 581h during it: the transfer completes
+    byte-exact and CNT_UNEXPECTED rises by exactly the two RTRs.
+    """
+    tb = SystemTB(dut)
+    await boot(tb)
+    host = tb.host
+    stall = EmptySegmentServer(9, tb.bitrate)
+    tb.bus.attach(stall)
+    await host.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=5))
+    await host.clear_counters()
+    t0 = sim_time_ps()
+    try:
+        await host.sdo_upload(9, 0x2100, 0, chan=0)
+    except SdoAbort as exc:
+        assert exc.code == ABORT_GENERAL and exc.sent_by_client, exc
+    else:
+        raise AssertionError("the empty-segment server's upload did not abort")
+    took = sim_time_ps() - t0
+    await tb.wait_for(lambda: stall.aborts == [ABORT_GENERAL], 1_000, 5, "abort at the server")
+    assert stall.segments == 4, stall.segments
+    # documented bound: (2 x 5 requests + 1) x (5 ms + 1 ms)
+    assert took < 66 * PS_PER_MS, took
+    dut._log.info("empty-segment server: aborted after %.3f ms", took / PS_PER_MS)
+    assert (await host.counters())["sdo_abort"] == 1
+
+    # the channel takes the next transfer; two RTRs on 581h during it are ignored and counted
+    unexp0 = (await host.counters())["unexpected"]
+    n601 = len(tb.frames(0x601))
+    rtr = can.Message(arbitration_id=0x581, is_extended_id=False, is_remote_frame=True, dlc=0)
+    job = cocotb.start_soon(host.sdo_upload(1, 0x1008, 0, chan=0))
+    for k in (1, 5):
+        await tb.wait_for(lambda k=k: len(tb.frames(0x601)) >= n601 + k, 5_000, 2, "request")
+        tb.raw.send(rtr)
+    data = await job
+    assert data == tb.slave(1).read_raw(0x1008, 0)
+    assert len([r for r in tb.frames(0x581) if r.msg.is_remote_frame]) == 2
+    assert (await host.counters())["unexpected"] - unexp0 == 2
     tb.check_models_clean()
     await Timer(1, "ns")
 
