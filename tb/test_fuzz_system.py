@@ -49,6 +49,7 @@ from tb.tblib.fuzz import (
     check_sync,
     random_frame,
     sdo_bound_ps,
+    sdo_patience_ps,
 )
 from tb.tblib.host_driver import NMT_START
 from tb.tblib.metrics import FRAGMENTS, record
@@ -252,10 +253,10 @@ class Fuzz:
                       data: bytes = b"", chan: int = 0) -> SdoRecord:
         h = self.tb.host
         rec = SdoRecord(node, index, sub, upload, size, sim_time_ps(),
-                        sdo_bound_ps(size, SDO_TIMEOUT_MS, size > 4))
+                        sdo_patience_ps(upload, size, SDO_TIMEOUT_MS))
         self.sdo_log.append(rec)
         await h._sdo_start(node, index, sub, upload, 0 if upload else size, chan, data)
-        t_give_up = rec.t0 + 2 * rec.bound_ps
+        t_give_up = rec.t0 + rec.bound_ps
         first = True
         while sim_time_ps() < t_give_up:
             word = await h.sdo_command(chan)
@@ -532,7 +533,7 @@ class Fuzz:
                                               (WATCHDOG_US + 1) * PS_PER_US, self.holds)
         self.rep.add("fsm_dwell", dwell_errs)
         self.rep.hangs += len(dwell_errs)
-        sdo_errs, unb = check_sdo(self.sdo_log)
+        sdo_errs, unb = check_sdo(self.sdo_log, frames, self.tb.chip.name, SDO_TIMEOUT_MS)
         self.rep.add("sdo", sdo_errs)
         self.rep.sdo_unbounded += unb
         self.rep.add("error_state", check_error_state(self.snaps))
@@ -761,16 +762,21 @@ def test_fuzz_checkers_can_fail():
     ep.seq1, ep.len_err, ep.rx_overflow = {0: 13}, {0: 0}, 1
     errs = check_pdo_epoch(ep, pdo, "chip")[0]
     assert any("LEN_ERR" in e for e in errs) and any("overflow" in e for e in errs)
-    # SDO bounds
+    # SDO bounds: (2R + 1) * (T + 1) ms with R the requests on the bus
     ms = PS_PER_MS
-    ok = SdoRecord(1, 0x1000, 0, True, 4, 0, sdo_bound_ps(4, 5, False), t1=ms)
-    assert check_sdo([ok]) == ([], 0)
-    never = SdoRecord(1, 0x1008, 0, True, 70, 0, sdo_bound_ps(70, 5, True))
-    slow = SdoRecord(1, 0x1000, 0, True, 4, 0, sdo_bound_ps(4, 5, False), t1=100 * ms)
-    odd = SdoRecord(1, 0x1000, 0, True, 4, 0, sdo_bound_ps(4, 5, False), t1=ms, error=True,
+    req = [_frame(t * us, 0x601, dlc=8) for t in (10, 400, 800)]
+    for f in req:
+        f.data = bytes([0x60, 0, 0x10, 0, 0, 0, 0, 0])
+    ok = SdoRecord(1, 0x1009, 0, True, 10, 0, sdo_patience_ps(True, 10, 5), t1=ms)
+    assert check_sdo([ok], req, "chip", 5) == ([], 0)
+    never = SdoRecord(1, 0x1008, 0, True, 70, 0, sdo_patience_ps(True, 70, 5))
+    slow = SdoRecord(1, 0x1000, 0, True, 4, 0, sdo_patience_ps(True, 4, 5),
+                     t1=sdo_bound_ps(3, 5) + 1)
+    odd = SdoRecord(1, 0x1000, 0, True, 4, 0, sdo_patience_ps(True, 4, 5), t1=ms, error=True,
                     abort_sent=True, abort_code=0x0800_0020)
-    errs, unb = check_sdo([ok, never, slow, odd])
-    assert unb == 2 and len(errs) == 3
+    many = SdoRecord(1, 0x1017, 0, False, 2, 0, sdo_patience_ps(False, 2, 5), t1=ms)
+    errs, unb = check_sdo([ok, never, slow, odd, many], req, "chip", 5)
+    assert unb == 3 and len(errs) == 4, errs
     # error state: the master may show any value of the last polling interval
     good = ErrorSnapshot(0, 8, 1, 0, False, False, ((9, 1, "error_active"),
                                                     (8, 1, "error_active")))

@@ -353,7 +353,7 @@ def check_pdo_epoch(ep: PdoEpoch, frames: Sequence[BusFrame], master: str
 @dataclass
 class SdoRecord:
     """One host SDO transfer: started at ``t0``; ``t1`` = when DONE was seen (None: never
-    within the bench's patience); ``bound_ps``: the longest it may take."""
+    within the bench's patience ``bound_ps``)."""
 
     node: int
     index: int
@@ -361,7 +361,7 @@ class SdoRecord:
     upload: bool
     size: int
     t0: int
-    bound_ps: int
+    bound_ps: int  #: how long the bench polls before giving up
     t1: int | None = None
     refused: bool = False
     error: bool = False
@@ -369,26 +369,63 @@ class SdoRecord:
     abort_sent: bool = False
 
 
-def sdo_bound_ps(size: int, timeout_ms: int, segmented: bool) -> int:
-    """Longest a transfer of ``size`` bytes may take: one response timeout (plus 1 ms of
-    timer granularity and 1 ms for frames and SPI) per request of the transfer (initiate,
-    one per 7-byte segment, the abort frame)."""
-    requests = 1 + (math.ceil(size / 7) if segmented else 0) + 1
-    return requests * (timeout_ms + 2) * 10**9
+#: SDO client parameters of the default build (docs/canopen_sdo_client.md)
+SDO_BUF_BYTES = 256
+SDO_EMPTY_SEGS_MAX = 3
 
 
-def check_sdo(log: Sequence[SdoRecord]) -> tuple[list[str], int]:
-    """Every SDO transfer ended (success, refusal or a documented abort) within its bound.
-    Returns (violations, transfers that never ended or ended late)."""
+def sdo_max_requests(upload: bool, size: int) -> int:
+    """The documented upper bound R on a transfer's request frames (abort frame excluded)."""
+    if upload:
+        return SDO_BUF_BYTES + SDO_EMPTY_SEGS_MAX + 2
+    return 1 if 1 <= size <= 4 else 1 + max(1, math.ceil(size / 7))
+
+
+def sdo_bound_ps(requests: int, timeout_ms: int) -> int:
+    """The documented bound of a transfer with ``requests`` request frames: every transfer
+    ends within (2R + 1) * (T + 1) ms (each request taken and answered within T + 1 ms each,
+    an abort frame taken within T + 1 ms)."""
+    return (2 * requests + 1) * (timeout_ms + 1) * 10**9
+
+
+def sdo_patience_ps(upload: bool, size: int, timeout_ms: int) -> int:
+    """How long the bench polls a transfer before calling it unbounded: 4 x the bound of a
+    transfer with the requests a correct server needs plus the tolerated empty segments (a
+    forged response may add segments; the documented worst case of an upload, 261 requests,
+    would be 3.1 s at T = 5 ms)."""
+    if upload:
+        r = 1 + math.ceil(size / 7) + SDO_EMPTY_SEGS_MAX
+    else:
+        r = sdo_max_requests(False, size)
+    return 4 * sdo_bound_ps(r, timeout_ms)
+
+
+def check_sdo(log: Sequence[SdoRecord], frames: Sequence[BusFrame] = (), master: str = "",
+              timeout_ms: int = 5) -> tuple[list[str], int]:
+    """Every SDO transfer ended (success, refusal or a documented abort) within the documented
+    bound (2R + 1) * (T + 1) ms, R = the request frames the master sent for it (counted on
+    the bus, at most :func:`sdo_max_requests`). Returns (violations, transfers that never
+    ended or ended late)."""
     errs: list[str] = []
     unbounded = 0
     for r in log:
         what = (f"SDO {'upload' if r.upload else 'download'} {r.index:04X}h:{r.sub} node "
                 f"{r.node} at {r.t0} ps")
-        if r.t1 is None or r.t1 - r.t0 > r.bound_ps:
+        if r.t1 is None:
             unbounded += 1
-            took = "never ended" if r.t1 is None else f"took {r.t1 - r.t0} ps"
-            errs.append(f"{what} {took} (bound {r.bound_ps} ps)")
+            errs.append(f"{what} never ended (polled {r.bound_ps} ps)")
+            continue
+        if r.refused:
+            continue
+        req = [f for f in frames if f.kind == "frame" and f.can_id == 0x600 + r.node
+               and master in f.sender.split("+") and r.t0 <= f.t_start < r.t1
+               and f.data[:1] != b"\x80"]
+        n_req = max(1, len(req))
+        bound = sdo_bound_ps(n_req, timeout_ms)
+        if n_req > sdo_max_requests(r.upload, r.size) or r.t1 - r.t0 > bound:
+            unbounded += 1
+            errs.append(f"{what} took {r.t1 - r.t0} ps with {n_req} requests (bound "
+                        f"{bound} ps, at most {sdo_max_requests(r.upload, r.size)} requests)")
             continue
         if r.error and r.abort_sent and r.abort_code not in CLIENT_ABORT_CODES:
             errs.append(f"{what}: client abort 0x{r.abort_code:08X} is not documented")
