@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import cocotb
 import pytest
-from cocotb.triggers import Timer
+from cocotb.triggers import Timer, ValueChange
 
 from sim_models.can_bus import BUS_OFF_RECOVERY_BITS
 from sim_models.canopen_slave import NmtState
@@ -93,6 +93,34 @@ class ErrorView:
         return worst / PS_PER_US
 
 
+class SyncPinCounter:
+    """Counts the TX2RTS# pulses (falling edges of mcp_txrts_n_o bit 2)."""
+
+    def __init__(self, dut) -> None:
+        self.sig = dut.mcp_txrts_n_o
+        self.pulses = 0
+        cocotb.start_soon(self._run())
+
+    async def _run(self) -> None:
+        prev = 1
+        while True:
+            await ValueChange(self.sig)
+            v = self.sig.value
+            now = int(v) >> 2 & 1 if v.is_resolvable else 1
+            if prev == 1 and now == 0:
+                self.pulses += 1
+            prev = now
+
+
+async def check_every_sync_fired(tb: SystemTB, pins: SyncPinCounter) -> None:
+    """Stop SYNC; every SYNC the master counted (SYNC_COUNT) was a TX2RTS# pulse, i.e. none
+    was started while TXB2 was unloaded (the controller would have dropped it)."""
+    await tb.host.sync_config(period_us=0, enable=False)
+    await Timer(20, "us")
+    count = await tb.host.read("SYNC_COUNT")
+    assert count == pins.pulses, f"SYNC_COUNT {count}, TX2RTS pulses {pins.pulses}"
+
+
 async def boot(tb: SystemTB) -> None:
     await tb.reset()
     await tb.wait_master_ready()
@@ -139,9 +167,11 @@ async def run_reinit_while_sync_runs(dut):
     after CRC errors made TEC > 0: CAN_STATUS reads TEC/REC/EFLG = 0 as soon as the RESET
     instruction is on the SPI bus, the strict chip model sees no TXnRTS request of an unwritten
     buffer, the master sends no ID 000h frame, and SYNC resumes with ID 080h, DLC 1 and a
-    counter byte in 1..4.
+    counter byte in 1..4; every SYNC the master counted was a TX2RTS# pulse (none was asked for
+    while TXB2 was unloaded).
     """
     tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
     await boot(tb)
     await tb.host.sync_config(period_us=400, overflow=4)
     await wait_syncs(tb, 0, 5)
@@ -159,6 +189,7 @@ async def run_reinit_while_sync_runs(dut):
         await tb.wait_master_ready()
         await wait_syncs(tb, t_init, 4)
         check_syncs(tb, t_init, 4, 4)
+    await check_every_sync_fired(tb, pins)
     check_clean(tb)
     await Timer(1, "ns")
 
@@ -170,9 +201,11 @@ async def run_init_retry_while_sync_runs(dut):
 
     Verifies: after CTRL.REINIT the first mode request is ignored by the chip, the controller
     polls MODE_POLL_MAX times, sends RESET again and succeeds; no violation of the strict chip
-    model, no ID 000h frame from the master, SYNC resumes (ID 080h, DLC 0).
+    model, no ID 000h frame from the master, SYNC resumes (ID 080h, DLC 0), SYNC_COUNT equals
+    the TX2RTS# pulses.
     """
     tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
     await boot(tb)
     await tb.host.sync_config(period_us=300)
     await wait_syncs(tb, 0, 3)
@@ -195,6 +228,7 @@ async def run_init_retry_while_sync_runs(dut):
     assert len(resets(tb)) == n_rst + 2 and ignore["n"] == 0
     await wait_syncs(tb, t_retry, 5)
     check_syncs(tb, t_retry, 5, 0)
+    await check_every_sync_fired(tb, pins)
     check_clean(tb)
     await Timer(1, "ns")
 
@@ -243,9 +277,11 @@ async def run_bus_off_shown_and_recovered(dut):
     SYNC resumes (ID 080h, DLC 1, counter 1..4). (2) bus-off without recovery: BUS_OFF = 1
     until the master re-initialises the chip, 20 480 us (128 frames of 160 bits) after the
     bus-off plus at most BOUND_US; CAN_STATUS and BUS_OFF are 0 after the RESET; SYNC resumes;
-    no violation of the strict chip model, no ID 000h frame from the master.
+    no violation of the strict chip model, no ID 000h frame from the master, SYNC_COUNT equals
+    the TX2RTS# pulses.
     """
     tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
     await boot(tb)
     await tb.host.sync_config(period_us=500, overflow=4)
     await wait_syncs(tb, 0, 3)
@@ -288,6 +324,7 @@ async def run_bus_off_shown_and_recovered(dut):
     lag = view.staleness_us()
     dut._log.info(f"bus-off: host view at most {lag:.0f} us old (bound {BOUND_US} us)")
     assert lag <= BOUND_US, f"host error state {lag:.0f} us old"
+    await check_every_sync_fired(tb, pins)
     check_clean(tb)
     await Timer(1, "ns")
 
