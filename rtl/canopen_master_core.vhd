@@ -47,8 +47,7 @@ entity canopen_master_core is
         CAN_BITRATE_BPS   : positive                := 1_000_000;  -- for Omni-ID feasibility
         OMNI_ENABLE       : boolean                 := true;       -- build the Omni-ID engine
         WATCHDOG_US       : positive                := 20_000;     -- longest wait in one state
-        REINIT_BACKOFF_MS : positive                := 100;        -- between init attempts
-        STATUS_POLL_MS    : positive                := 10          -- TEC/REC/EFLG refresh period
+        REINIT_BACKOFF_MS : positive                := 100         -- between init attempts
     );
     port (
         -- clock and reset
@@ -66,15 +65,13 @@ entity canopen_master_core is
         -- debug
         fsm_state_o : out   std_logic_vector(3 downto 0); -- FSM state (St number)
         -- mcp2510_ctrl: control and status
-        ctl_reinit_o     : out   std_logic;                    -- pulse: re-initialise
-        ctl_init_done_i  : in    std_logic;                    -- chip in normal mode
-        ctl_init_fail_i  : in    std_logic;                    -- initialisation failed
-        ctl_busy_i       : in    std_logic;                    -- SPI sequence running
-        ctl_status_req_o : out   std_logic;                    -- pulse: read TEC/REC/EFLG
-        ctl_status_ok_i  : in    std_logic;                    -- strobe: snapshot updated
-        ctl_tec_i        : in    std_logic_vector(7 downto 0); -- snapshot TEC
-        ctl_rec_i        : in    std_logic_vector(7 downto 0); -- snapshot REC
-        ctl_eflg_i       : in    std_logic_vector(7 downto 0); -- snapshot EFLG
+        ctl_reinit_o    : out   std_logic;                    -- pulse: re-initialise
+        ctl_init_done_i : in    std_logic;                    -- chip in normal mode
+        ctl_init_fail_i : in    std_logic;                    -- initialisation failed
+        ctl_busy_i      : in    std_logic;                    -- SPI sequence running
+        ctl_tec_i       : in    std_logic_vector(7 downto 0); -- live TEC (0 after RESET)
+        ctl_rec_i       : in    std_logic_vector(7 downto 0); -- live REC (0 after RESET)
+        ctl_eflg_i      : in    std_logic_vector(7 downto 0); -- live EFLG (0 after RESET)
         -- mcp2510_ctrl: transmit
         ctl_tx_valid_o   : out   std_logic;                     -- request
         ctl_tx_ready_i   : in    std_logic;                     -- request taken
@@ -90,6 +87,7 @@ entity canopen_master_core is
         ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
         ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
         ctl_tx_err_i     : in    std_logic_vector(2 downto 0);  -- strobe: TXERR
+        ctl_tx_drop_i    : in    std_logic_vector(2 downto 0);  -- strobe: fire not loaded
         -- mcp2510_ctrl: receive
         ctl_rx_valid_i : in    std_logic;                     -- FIFO head valid
         ctl_rx_ready_o : out   std_logic;                     -- pop
@@ -113,6 +111,11 @@ architecture rtl of canopen_master_core is
     -- ---------------------------------------------------------------------------------------------
     constant cycles_per_us_c : positive := (CLK_FREQ_HZ + 999_999) / 1_000_000;
     constant backoff_us_c    : positive := 1000 * REINIT_BACKOFF_MS;
+    -- bus-off: the MCP2510 returns to error-active by itself after 128 x 11 recessive bits;
+    -- on a loaded bus one such sequence ends each frame, so 128 longest frames (160 bits)
+    -- bound it. Only a chip still bus-off after that is re-initialised (G1).
+    constant busoff_us_c : positive := (128 * 160 * 1000 + CAN_BITRATE_BPS / 1000 - 1)
+                                       / (CAN_BITRATE_BPS / 1000);
 
     function check_config return boolean is
     begin
@@ -246,12 +249,12 @@ architecture rtl of canopen_master_core is
     -- state watchdog and St0 re-initialisation
     signal wd_us        : natural range 0 to WATCHDOG_US;
     signal backoff_us   : natural range 0 to backoff_us_c;
+    signal busoff_us    : natural range 0 to busoff_us_c;
     signal reinit_pulse : std_logic;
     -- a re-initialisation was requested and the controller has not restarted yet: St0 must
     -- not leave on the init_done of the previous initialisation
     signal reinit_wait   : std_logic;
     signal init_done_fsm : std_logic;
-    signal status_ms     : natural range 0 to STATUS_POLL_MS;
     -- CAN status snapshot for the host
     signal can_tec  : std_logic_vector(7 downto 0);
     signal can_rec  : std_logic_vector(7 downto 0);
@@ -552,9 +555,9 @@ begin
             err_node         <= '0';
             wd_us            <= 0;
             backoff_us       <= 0;
+            busoff_us        <= 0;
             reinit_pulse     <= '0';
             reinit_wait      <= '0';
-            status_ms        <= 0;
             sdo_tx_ack       <= '0';
             mon_tx_ack       <= '0';
             pdo_tx_ack       <= '0';
@@ -702,6 +705,11 @@ begin
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
                 sync_loaded <= '1';
             end if;
+            -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
+            -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
+            if ctl_init_done_i = '0' then
+                sync_loaded <= '0';
+            end if;
 
             -- SYNC producer: exact period in clock cycles, started by the TX2RTS pin ---------
             if sync_en = '0' or unsigned(sync_period_us) = 0 then
@@ -748,12 +756,19 @@ begin
             -- error latch --------------------------------------------------------------------
             if ctl_int_valid_i = '1' and ctl_int_canintf_i(intf_errif_c) = '1' then
                 err_can <= '1';
-                if ctl_int_eflg_i(eflg_txbo_c) = '1' then
-                    err_busoff <= '1';
-                end if;
             end if;
-            if ctl_rx_overflow_i /= "00" or ctl_tx_err_i /= "000" then
+            if ctl_rx_overflow_i /= "00" or ctl_tx_err_i /= "000" or ctl_tx_drop_i /= "000" then
                 err_can <= '1';
+            end if;
+            -- bus-off (EFLG.TXBO, shown in STATUS.BUS_OFF): wait for the chip's own recovery;
+            -- still bus-off after busoff_us_c -> re-initialise (St13 -> St0, G1), once
+            if can_eflg(eflg_txbo_c) = '0' or ctl_init_done_i = '0' then
+                busoff_us <= 0;
+            elsif tick_us = '1' and busoff_us = busoff_us_c - 1 then
+                busoff_us  <= busoff_us_c;
+                err_busoff <= '1';
+            elsif tick_us = '1' and busoff_us < busoff_us_c then
+                busoff_us <= busoff_us + 1;
             end if;
             if host_reinit = '1' then
                 err_reinit <= '1';
@@ -795,19 +810,11 @@ begin
                 backoff_us <= 0;
             end if;
 
-            -- periodic TEC/REC/EFLG snapshot for the host --------------------------------------
-            if ctl_status_ok_i = '1' then
-                can_tec  <= ctl_tec_i;
-                can_rec  <= ctl_rec_i;
-                can_eflg <= ctl_eflg_i;
-            end if;
-            if tick_ms = '1' then
-                if status_ms = STATUS_POLL_MS - 1 then
-                    status_ms <= 0;
-                else
-                    status_ms <= status_ms + 1;
-                end if;
-            end if;
+            -- TEC/REC/EFLG for the host: mcp2510_ctrl polls them every ERR_POLL_US and after
+            -- every error interrupt, and clears them with the chip's RESET ------------------
+            can_tec  <= ctl_tec_i;
+            can_rec  <= ctl_rec_i;
+            can_eflg <= ctl_eflg_i;
         end if;
 
     end process datapath_proc;
@@ -817,9 +824,7 @@ begin
     init_done_fsm <= ctl_init_done_i and not reinit_wait and not reinit_pulse
                      and not (in_init and state_change);
 
-    ctl_reinit_o     <= reinit_pulse;
-    ctl_status_req_o <= '1' when tick_ms = '1' and status_ms = STATUS_POLL_MS - 1
-                                 and ctl_init_done_i = '1' else '0';
+    ctl_reinit_o <= reinit_pulse;
 
     -- St12: request towards mcp2510_ctrl
     ctl_tx_valid_o <= in_tx and not tx_requested;
@@ -853,7 +858,7 @@ begin
     ev_frame_error <= cnt_unexpected or (mon_rx_done and mon_rx_malformed);
     cnt_rx_frame   <= rx_pop;
     cnt_tx_frame   <= or ctl_tx_done_i;
-    cnt_tx_error   <= or ctl_tx_err_i;
+    cnt_tx_error   <= (or ctl_tx_err_i) or (or ctl_tx_drop_i);
     cnt_can_error  <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
     ev_init        <= (ctl_init_done_i and not init_done_q)
                       or (ctl_init_fail_i and not init_fail_q);

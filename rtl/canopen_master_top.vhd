@@ -77,8 +77,6 @@ architecture rtl of canopen_master_top is
     signal init_done   : std_logic;
     signal init_fail   : std_logic;
     signal ctl_busy    : std_logic;
-    signal status_req  : std_logic;
-    signal status_ok   : std_logic;
     signal tec         : std_logic_vector(7 downto 0);
     signal rec         : std_logic_vector(7 downto 0);
     signal eflg        : std_logic_vector(7 downto 0);
@@ -95,6 +93,7 @@ architecture rtl of canopen_master_top is
     signal tx_pending  : std_logic_vector(2 downto 0);
     signal tx_done     : std_logic_vector(2 downto 0);
     signal tx_err      : std_logic_vector(2 downto 0);
+    signal tx_drop     : std_logic_vector(2 downto 0);
     signal tx_loaded   : std_logic;
     signal rx_valid    : std_logic;
     signal rx_ready    : std_logic;
@@ -152,8 +151,6 @@ begin
             ctl_init_done_i     => init_done,
             ctl_init_fail_i     => init_fail,
             ctl_busy_i          => ctl_busy,
-            ctl_status_req_o    => status_req,
-            ctl_status_ok_i     => status_ok,
             ctl_tec_i           => tec,
             ctl_rec_i           => rec,
             ctl_eflg_i          => eflg,
@@ -171,6 +168,7 @@ begin
             ctl_tx_pending_i    => tx_pending,
             ctl_tx_done_i       => tx_done,
             ctl_tx_err_i        => tx_err,
+            ctl_tx_drop_i       => tx_drop,
             ctl_rx_valid_i      => rx_valid,
             ctl_rx_ready_o      => rx_ready,
             ctl_rx_id_i         => rx_id,
@@ -222,6 +220,7 @@ begin
             tx_err_o         => tx_err,
             tx_arb_lost_o    => open,
             tx_aborted_o     => open,
+            tx_fire_drop_o   => tx_drop,
             rx_valid_o       => rx_valid,
             rx_ready_i       => rx_ready,
             rx_id_o          => rx_id,
@@ -234,13 +233,17 @@ begin
             int_canintf_o    => int_canintf,
             int_eflg_o       => int_eflg,
             rx_overflow_o    => rx_overflow,
-            status_req_i     => status_req,
-            status_valid_o   => status_ok,
+            err_valid_o      => open,
+            err_tec_o        => tec,
+            err_rec_o        => rec,
+            err_eflg_o       => eflg,
+            status_req_i     => '0',
+            status_valid_o   => open,
             status_rdstat_o  => open,
-            status_tec_o     => tec,
-            status_rec_o     => rec,
+            status_tec_o     => open,
+            status_rec_o     => open,
             status_intf_o    => open,
-            status_eflg_o    => eflg,
+            status_eflg_o    => open,
             status_txbctrl_o => open,
             spi_cs_n_o       => spi_cs_n_o,
             spi_sck_o        => spi_sck_o,

@@ -190,8 +190,8 @@ package canopen_regs_pkg is
     constant STATUS_CTRL_BUSY_C     : natural := 6;  -- RO
     constant STATUS_TX_PENDING_HI_C : natural := 10; -- RO: transmit buffers 2..0 pending
     constant STATUS_TX_PENDING_LO_C : natural := 8;
-    constant STATUS_BUS_OFF_C       : natural := 11; -- RO: CAN controller bus-off
-    constant STATUS_ERR_PASSIVE_C   : natural := 12; -- RO: CAN controller error passive
+    constant STATUS_BUS_OFF_C       : natural := 11; -- RO
+    constant STATUS_ERR_PASSIVE_C   : natural := 12; -- RO
 
     -- IRQ_STATUS
     constant IRQ_STATUS_NODE_C        : natural := 0; -- W1C

@@ -57,7 +57,8 @@ entity mcp2510_ctrl is
         RX_FIFO_DEPTH   : positive range 1 to 16    := 4;          -- frames buffered in the FPGA
         TXRTS_PINS      : natural range 0 to 7      := 7;          -- TXnRTS pins enabled (mask)
         TXRTS_LOW_NS    : positive                  := 500;        -- TXnRTS low pulse [ns]
-        PIN_SETTLE_NS   : positive                  := 200         -- ignore RXnBF/INT after clear
+        PIN_SETTLE_NS   : positive                  := 200;        -- ignore RXnBF/INT after clear
+        ERR_POLL_US     : positive range 1 to 1000  := 500         -- TEC/REC/EFLG poll [us]
     );
     port (
         -- clock and reset
@@ -83,12 +84,13 @@ entity mcp2510_ctrl is
         tx_fire_i  : in    std_logic_vector(2 downto 0);  -- pulse: start buffer by pin
         tx_abort_i : in    std_logic;                     -- pulse: abort all pending
         -- transmit events
-        tx_loaded_o   : out   std_logic;                    -- strobe: request executed
-        tx_pending_o  : out   std_logic_vector(2 downto 0); -- TXREQ set (as known here)
-        tx_done_o     : out   std_logic_vector(2 downto 0); -- strobe: sent (TXnIF)
-        tx_err_o      : out   std_logic_vector(2 downto 0); -- strobe: TXERR seen
-        tx_arb_lost_o : out   std_logic_vector(2 downto 0); -- strobe: MLOA seen
-        tx_aborted_o  : out   std_logic_vector(2 downto 0); -- strobe: aborted by tx_abort_i
+        tx_loaded_o    : out   std_logic;                    -- strobe: request executed
+        tx_pending_o   : out   std_logic_vector(2 downto 0); -- TXREQ set (as known here)
+        tx_done_o      : out   std_logic_vector(2 downto 0); -- strobe: sent (TXnIF)
+        tx_err_o       : out   std_logic_vector(2 downto 0); -- strobe: TXERR seen
+        tx_arb_lost_o  : out   std_logic_vector(2 downto 0); -- strobe: MLOA seen
+        tx_aborted_o   : out   std_logic_vector(2 downto 0); -- strobe: aborted by tx_abort_i
+        tx_fire_drop_o : out   std_logic_vector(2 downto 0); -- strobe: fire of an unloaded buffer
         -- received frames (FIFO head, first-word fall-through)
         rx_valid_o : out   std_logic;                     -- a frame is available
         rx_ready_i : in    std_logic;                     -- pop the frame
@@ -103,6 +105,11 @@ entity mcp2510_ctrl is
         int_canintf_o : out   std_logic_vector(7 downto 0); -- CANINTF read on that INT
         int_eflg_o    : out   std_logic_vector(7 downto 0); -- EFLG read on that INT
         rx_overflow_o : out   std_logic_vector(1 downto 0); -- strobe: RXnOVR (frame lost)
+        -- live error state (polled every ERR_POLL_US and after every error INT, 0 after RESET)
+        err_valid_o : out   std_logic;                    -- strobe: TEC/REC/EFLG read
+        err_tec_o   : out   std_logic_vector(7 downto 0); -- TEC
+        err_rec_o   : out   std_logic_vector(7 downto 0); -- REC
+        err_eflg_o  : out   std_logic_vector(7 downto 0); -- EFLG
         -- status snapshot on request
         status_req_i     : in    std_logic;                     -- pulse: read status registers
         status_valid_o   : out   std_logic;                     -- strobe: snapshot updated
@@ -159,6 +166,7 @@ architecture rtl of mcp2510_ctrl is
     constant abort_wait_c  : positive := 192 * ((CLK_FREQ_HZ + CAN_BITRATE_BPS - 1)
                                                 / CAN_BITRATE_BPS);
     constant abort_polls_c : positive := 4;
+    constant err_poll_c    : positive := us_to_cycles(ERR_POLL_US);
     constant timer_max_c   : positive := reset_wait_c + mode_poll_c + abort_wait_c;
 
     function check_config return boolean is
@@ -279,8 +287,57 @@ architecture rtl of mcp2510_ctrl is
         S_STAT_RDSTAT,  -- READ STATUS
         S_STAT_ERRCNT,  -- READ TEC, REC
         S_STAT_FLAGS,   -- READ CANINTF, EFLG
-        S_STAT_TXB      -- READ TXB0..2CTRL
+        S_STAT_TXB,     -- READ TXB0..2CTRL
+        S_ERR_CNT,      -- error poll: READ TEC, REC
+        S_ERR_FLG       -- error poll: READ EFLG
     );
+
+    -- the states that send one instruction and then always go on to the same state
+
+    function simple_next (st : seq_state_t) return seq_state_t is
+    begin
+
+        case st is
+
+            when S_CFG_MASKS =>
+
+                return S_CFG_FILT_A;
+
+            when S_CFG_FILT_A =>
+
+                return S_CFG_FILT_B;
+
+            when S_CFG_FILT_B =>
+
+                return S_CFG_RXB0;
+
+            when S_CFG_RXB0 =>
+
+                return S_CFG_RXB1;
+
+            when S_CFG_RXB1 =>
+
+                return S_CFG_VERIFY;
+
+            when S_STAT_RDSTAT =>
+
+                return S_STAT_ERRCNT;
+
+            when S_STAT_ERRCNT =>
+
+                return S_STAT_FLAGS;
+
+            when S_ERR_CNT =>
+
+                return S_ERR_FLG;
+
+            when others =>
+
+                return S_IDLE; -- S_ABORT_CLEAR
+
+        end case;
+
+    end function simple_next;
 
     signal state : seq_state_t;
     -- '0': the state's command has not been issued yet, '1': waiting for its response
@@ -309,10 +366,15 @@ architecture rtl of mcp2510_ctrl is
     signal txp_cache : txp_array_t;
     signal txp_known : std_logic_vector(2 downto 0);
     signal pending   : std_logic_vector(2 downto 0);
-    signal abort_req : std_logic;
+    -- buffer completely written since the last RESET (only such a buffer may be fired by pin)
+    signal txb_loaded : std_logic_vector(2 downto 0);
+    signal abort_req  : std_logic;
     -- reinit_i seen (a pulse that arrives while an SPI sequence runs is kept)
     signal reinit_req : std_logic;
     signal status_req : std_logic;
+    -- error poll: due (interval over, or an error INT was handled), and the interval counter
+    signal err_req : std_logic;
+    signal err_cnt : natural range 0 to err_poll_c;
 
     -- values read on an INT
     signal intf_q    : byte_t;
@@ -630,10 +692,15 @@ begin
                 cmd_len   <= x"1";
 
             -- TEC, REC
-            when S_STAT_ERRCNT =>
+            when S_STAT_ERRCNT | S_ERR_CNT =>
 
                 cmd_addr <= MCP_TEC_C;
                 cmd_len  <= x"2";
+
+            when S_ERR_FLG =>
+
+                cmd_addr <= MCP_EFLG_C;
+                cmd_len  <= x"1";
 
             -- states that issue no instruction
             when S_POR_WAIT | S_RESET_WAIT | S_MODE_WAIT | S_FAILED | S_IDLE | S_ABORT_WAIT =>
@@ -699,6 +766,10 @@ begin
             cmd_valid      <= '0';
             txp_known      <= (others => '0');
             pending        <= (others => '0');
+            txb_loaded     <= (others => '0');
+            err_req        <= '0';
+            err_cnt        <= err_poll_c;
+            err_valid_o    <= '0';
             abort_req      <= '0';
             reinit_req     <= '0';
             status_req     <= '0';
@@ -716,6 +787,7 @@ begin
             status_valid_o <= '0';
         elsif rising_edge(clk_i) then
             -- strobes
+            err_valid_o    <= '0';
             cmd_valid      <= '0';
             fifo_push      <= '0';
             tx_loaded_o    <= '0';
@@ -741,6 +813,12 @@ begin
                 blank_cnt <= blank_cnt - 1;
             end if;
             pending <= pending or fire_set;
+            -- the error poll falls due every ERR_POLL_US (counted from the last one)
+            if err_cnt /= 0 then
+                err_cnt <= err_cnt - 1;
+            else
+                err_req <= '1';
+            end if;
 
             case state is
 
@@ -760,10 +838,14 @@ begin
 
                 when S_RESET_CMD =>
 
+                    -- the chip forgets everything: TX buffers undefined, TEC/REC/EFLG = 0
                     init_done_o <= '0';
                     init_fail_o <= '0';
                     txp_known   <= (others => '0');
                     pending     <= (others => '0');
+                    txb_loaded  <= (others => '0');
+                    err_req     <= '0';
+                    err_cnt     <= err_poll_c;
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
@@ -771,44 +853,14 @@ begin
                         go(S_RESET_WAIT);
                     end if;
 
-                when S_CFG_MASKS =>
+                -- one instruction, then always the same next state (simple_next)
+                when S_CFG_MASKS | S_CFG_FILT_A | S_CFG_FILT_B | S_CFG_RXB0 | S_CFG_RXB1
+                     | S_ABORT_CLEAR | S_STAT_RDSTAT | S_STAT_ERRCNT | S_ERR_CNT =>
 
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
-                        go(S_CFG_FILT_A);
-                    end if;
-
-                when S_CFG_FILT_A =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_CFG_FILT_B);
-                    end if;
-
-                when S_CFG_FILT_B =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_CFG_RXB0);
-                    end if;
-
-                when S_CFG_RXB0 =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_CFG_RXB1);
-                    end if;
-
-                when S_CFG_RXB1 =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_CFG_VERIFY);
+                        go(simple_next(state));
                     end if;
 
                 when S_CFG_VERIFY =>
@@ -887,6 +939,10 @@ begin
                         go(S_RX_READ);
                     elsif blank_cnt = 0 and int_sync(1) = '0' then
                         go(S_INT_READ);
+                    elsif err_req = '1' then
+                        err_req <= '0';
+                        err_cnt <= err_poll_c;
+                        go(S_ERR_CNT);
                     elsif abort_req = '1' then
                         abort_req <= '0';
                         go(S_ABORT_SET);
@@ -900,6 +956,15 @@ begin
                         txq_rtr  <= tx_rtr_i;
                         txq_dlc  <= tx_dlc_i;
                         txq_data <= tx_data_i;
+                        -- a buffer being rewritten must not be fired before the WRITE ends
+                        for b in 0 to 2 loop
+
+                            if b = to_integer(unsigned(tx_buf_i)) then
+                                txb_loaded(b) <= '0';
+                            end if;
+
+                        end loop;
+
                         go(S_TX_LOAD);
                     elsif status_req = '1' then
                         status_req <= '0';
@@ -937,6 +1002,11 @@ begin
                         issue;
                     elsif rsp_valid = '1' then
                         buf_idx <= 0;
+                        -- an error interrupt: read TEC/REC/EFLG as soon as the INT is handled
+                        if (byte_of(rsp_rdata, 0)
+                            and (MCP_CANINTF_ERRIF_C or MCP_CANINTF_MERRF_C)) /= x"00" then
+                            err_req <= '1';
+                        end if;
                         if (byte_of(rsp_rdata, 0) and int_clear_c) = x"00"
                            and (byte_of(rsp_rdata, 1) and eflg_ovr_c) = x"00" then
                             -- nothing (left) to handle: the re-read after an overflow clear,
@@ -1016,8 +1086,9 @@ begin
                         for b in 0 to 2 loop
 
                             if b = txq_buf then
-                                txp_cache(b) <= txq_txp;
-                                txp_known(b) <= '1';
+                                txp_cache(b)  <= txq_txp;
+                                txp_known(b)  <= '1';
+                                txb_loaded(b) <= '1';
                             end if;
 
                         end loop;
@@ -1087,33 +1158,9 @@ begin
                         end if;
                     end if;
 
-                when S_ABORT_CLEAR =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_IDLE);
-                    end if;
-
                 -- ----------------------------------------------------------------------------
                 -- status snapshot
                 -- ----------------------------------------------------------------------------
-                when S_STAT_RDSTAT =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_STAT_ERRCNT);
-                    end if;
-
-                when S_STAT_ERRCNT =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' then
-                        go(S_STAT_FLAGS);
-                    end if;
-
                 when S_STAT_FLAGS =>
 
                     if issued = '0' then
@@ -1135,6 +1182,18 @@ begin
                             buf_idx <= buf_idx + 1;
                             issued  <= '0';
                         end if;
+                    end if;
+
+                -- ----------------------------------------------------------------------------
+                -- error poll: TEC, REC, then EFLG (err_proc keeps the values)
+                -- ----------------------------------------------------------------------------
+                when S_ERR_FLG =>
+
+                    if issued = '0' then
+                        issue;
+                    elsif rsp_valid = '1' then
+                        err_valid_o <= '1';
+                        go(S_IDLE);
                     end if;
 
             end case;
@@ -1240,7 +1299,7 @@ begin
     tx_ready_o <= '1' when state = S_IDLE and reinit_req = '0' and reinit_i = '0'
                            and not (blank_cnt = 0 and (rx0_sync(1) = '0' or rx1_sync(1) = '0'
                                                  or int_sync(1) = '0'))
-                                   and abort_req = '0' and tx_valid_i = '1'
+                                   and err_req = '0' and abort_req = '0' and tx_valid_i = '1'
                                    and unsigned(tx_buf_i) <= 2
                                    and pending(to_integer(unsigned(tx_buf_i)) mod 3) = '0' else
                   '0';
@@ -1256,18 +1315,24 @@ begin
     begin
 
         if rst_n_i = '0' then
-            rts_cnt  <= (others => 0);
-            fire_set <= (others => '0');
+            rts_cnt        <= (others => 0);
+            fire_set       <= (others => '0');
+            tx_fire_drop_o <= (others => '0');
         elsif rising_edge(clk_i) then
-            fire_set <= (others => '0');
+            fire_set       <= (others => '0');
+            tx_fire_drop_o <= (others => '0');
 
             for n in 0 to 2 loop
 
                 if rts_cnt(n) /= 0 then
                     rts_cnt(n) <= rts_cnt(n) - 1;
-                elsif tx_fire_i(n) = '1' then
+                elsif tx_fire_i(n) = '1' and txb_loaded(n) = '1' then
                     rts_cnt(n)  <= txrts_low_c;
                     fire_set(n) <= '1';
+                elsif tx_fire_i(n) = '1' then
+                    -- not written since the last RESET (or being rewritten): the chip would
+                    -- send undefined contents (ID 000h after a reset); dropped and reported
+                    tx_fire_drop_o(n) <= '1';
                 end if;
 
             end loop;
@@ -1281,6 +1346,32 @@ begin
     end generate rts_pins_gen;
 
     mcp_reset_n_o <= rst_n_i;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Live error state: TEC/REC/EFLG of the last error poll (an error INT starts one at once),
+    -- 0 from the RESET instruction on (the chip's own values after a reset)
+    -- ---------------------------------------------------------------------------------------------
+    err_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            err_tec_o  <= (others => '0');
+            err_rec_o  <= (others => '0');
+            err_eflg_o <= (others => '0');
+        elsif rising_edge(clk_i) then
+            if state = S_RESET_CMD then
+                err_tec_o  <= (others => '0');
+                err_rec_o  <= (others => '0');
+                err_eflg_o <= (others => '0');
+            elsif rsp_valid = '1' and state = S_ERR_CNT then
+                err_tec_o <= byte_of(rsp_rdata, 0);
+                err_rec_o <= byte_of(rsp_rdata, 1);
+            elsif rsp_valid = '1' and state = S_ERR_FLG then
+                err_eflg_o <= byte_of(rsp_rdata, 0);
+            end if;
+        end if;
+
+    end process err_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- RX FIFO (first-word fall-through)

@@ -162,8 +162,9 @@ REGISTERS: tuple[Register, ...] = (
       F("INIT_FAIL", 5, "RO", None, "CAN controller initialisation failed"),
       F("CTRL_BUSY", 6, "RO", None, "CAN controller busy (SPI sequence running)"),
       F("TX_PENDING", "10:8", "RO", None, "transmit buffers 2..0 pending"),
-      F("BUS_OFF", 11, "RO", None, "CAN controller bus-off"),
-      F("ERR_PASSIVE", 12, "RO", None, "CAN controller error passive")),
+      F("BUS_OFF", 11, "RO", None, "CAN controller bus-off (EFLG.TXBO, as CAN_STATUS)"),
+      F("ERR_PASSIVE", 12, "RO", None, "CAN controller error passive (EFLG.TXEP or RXEP, as "
+                                       "CAN_STATUS)")),
     R("IRQ_STATUS", 0x04, "W1C", "interrupt flags: set by events, cleared by writing 1",
       *(F(n, i, "W1C", 0, d) for i, (n, d) in enumerate(IRQ_BITS))),
     R("IRQ_ENABLE", 0x05, "RW", "interrupt enables: irq_o = OR(IRQ_STATUS and IRQ_ENABLE)",
@@ -186,7 +187,9 @@ REGISTERS: tuple[Register, ...] = (
       F("VALUE", "31:0", "RO", None, "count")),
     R("TIME_US", 0x0B, "RO", "free-running microsecond counter of the master",
       F("VALUE", "31:0", "RO", None, "time in us (wraps)")),
-    R("CAN_STATUS", 0x0C, "RO", "CAN controller error state (last status read)",
+    R("CAN_STATUS", 0x0C, "RO", "CAN controller error state: read from the MCP2510 every "
+                                "500 us and after every error interrupt, at most 700 us old; "
+                                "0 from each re-initialisation (RESET) on",
       F("TEC", "7:0", "RO", None, "transmit error counter"),
       F("REC", "15:8", "RO", None, "receive error counter"),
       F("EFLG", "23:16", "RO", None, "MCP2510 EFLG register")),

@@ -82,7 +82,8 @@ class TB:
         self.rx_frames: list[tuple[int, can.Message, int]] = []  # (t_ps, frame, buffer)
         self.rx_enabled = True
         self.strobes = StrobeMonitor(
-            dut, ["tx_done", "tx_err", "tx_arb_lost", "tx_aborted", "rx_overflow"])
+            dut, ["tx_done", "tx_err", "tx_arb_lost", "tx_aborted", "rx_overflow",
+                  "tx_fire_drop"])
         self.events = self.strobes.events
         self.ints: list[tuple[int, int, int]] = []  # (t, CANINTF, EFLG)
         for sig in (dut.reinit_i, dut.tx_valid_i, dut.tx_fire_i, dut.tx_abort_i,
@@ -505,6 +506,157 @@ async def run_init_failure_reported(dut):
     await Timer(1, "ns")
 
 
+#: EFLG bits of the error state (the RXnOVR bits are cleared by the controller itself)
+EFLG_STATE = 0x3F
+
+
+class ErrorStateMonitor:
+    """Samples the chip's TEC/REC/EFLG and the DUT's live copy (err_*_o) every ``step_us``.
+
+    ``staleness_ps()``: for every DUT sample and register, how long ago the chip last held that
+    value (0 if it holds it now); the largest such age is the lag of the DUT behind the chip.
+    """
+
+    def __init__(self, dut, chip: Mcp2510, step_us: float = 2) -> None:
+        self.dut, self.chip, self.step_us = dut, chip, step_us
+        self.chip_log: list[tuple[int, tuple[int, int, int]]] = []
+        self.dut_log: list[tuple[int, tuple[int, int, int]]] = []
+        cocotb.start_soon(self._run())
+
+    def chip_value(self) -> tuple[int, int, int]:
+        c = self.chip
+        return c.peek(R.TEC), c.peek(R.REC), c.peek(R.EFLG) & EFLG_STATE
+
+    def dut_value(self) -> tuple[int, int, int]:
+        d = self.dut
+        return (int(d.err_tec_o.value), int(d.err_rec_o.value),
+                int(d.err_eflg_o.value) & EFLG_STATE)
+
+    async def _run(self) -> None:
+        while True:
+            await ReadOnly()
+            t = sim_time_ps()
+            self.chip_log.append((t, self.chip_value()))
+            self.dut_log.append((t, self.dut_value()))
+            await Timer(self.step_us, "us")
+
+    def staleness_ps(self, t_from: int = 0) -> int:
+        """Largest age of any of the three values (each is one register the chip had)."""
+        worst = 0
+        last_seen: list[dict[int, int]] = [{}, {}, {}]
+        for (t, c), (_, d) in zip(self.chip_log, self.dut_log):
+            for k in range(3):
+                last_seen[k][c[k]] = t
+                if t >= t_from:
+                    assert d[k] in last_seen[k], f"DUT {d} at {t} ps: never held by the chip"
+                    worst = max(worst, t - last_seen[k][d[k]])
+        return worst
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_fire_of_unloaded_buffer_dropped(dut):
+    """Purpose: a TXnRTS fire never starts a buffer that was not written since the chip's RESET.
+
+    Verifies: right after initialisation a tx_fire_i of TXB2 (never loaded) gives no pin
+    pulse, one tx_fire_drop_o strobe and nothing on the bus; a preloaded TXB2 fires and is
+    sent; after reinit_i (RESET: the buffer is undefined again) the same fire is dropped again
+    and no frame with ID 000h appears; after a new preload the fire works. The strict chip model
+    reports no violation (it flags a transmission request of a buffer whose SIDH/SIDL/DLC were
+    not written since reset).
+    """
+    tb = TB(dut)
+    await tb.reset_and_init()
+
+    async def fire_dropped() -> None:
+        n_drop = len(tb.events["tx_fire_drop"])
+        await tb.pulse(dut.tx_fire_i, 0b100)
+        for _ in range(40):
+            await RisingEdge(dut.clk_i)
+            await ReadOnly()
+            assert int(dut.mcp_txrts_n_o.value) == 0b111, "TX2RTS pulsed for an unloaded TXB2"
+        assert [v for _, v in tb.events["tx_fire_drop"][n_drop:]] == [0b100]
+        assert int(dut.tx_pending_o.value) == 0
+
+    await fire_dropped()
+    sync = can.Message(arbitration_id=0x080, data=b"\x05", is_extended_id=False)
+    await tb.send(sync, buf=2, txp=3, send=False)
+    await tb.pulse(dut.tx_fire_i, 0b100)
+    await tb.wait_len(tb.peer.received, 1, 1_000, 2)
+    assert same_frame(tb.peer.received[0][1], sync)
+    await tb.send(sync, buf=2, txp=3, send=False)  # loaded again, then the chip is reset
+    await tb.pulse(dut.reinit_i)
+    await FallingEdge(dut.init_done_o)
+    await tb.wait_init()
+    await fire_dropped()
+    await Timer(200, "us")
+    assert len(tb.peer.received) == 1, tb.peer.received
+    await tb.send(sync, buf=2, txp=3, send=False)
+    await tb.pulse(dut.tx_fire_i, 0b100)
+    await tb.wait_len(tb.peer.received, 2, 1_000, 2)
+    assert all(same_frame(m, sync) for _, m in tb.peer.received)
+    assert not [r for r in tb.bus.records if r.kind == "frame" and r.msg.arbitration_id == 0]
+    tb.check_no_violations()
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_error_state_polled_and_cleared(dut):
+    """Purpose: the live error state (err_tec_o, err_rec_o, err_eflg_o) follows the chip.
+
+    Verifies: with nobody acknowledging, TEC climbs to error-passive (error interrupts); after
+    the peer returns, every successful frame lowers TEC by 1 without any error interrupt, back
+    to error-active; through all of it the DUT's copy is never older than ERR_POLL_US + 100 us
+    (the poll interval plus the SPI work that may be ahead of it); the polls come every
+    ERR_POLL_US on an idle controller; reinit_i clears the copy with the chip's RESET.
+    """
+    tb = TB(dut, peer_bitrate=None)
+    await tb.reset_and_init()
+    poll_us = param("ERR_POLL_US")
+    bound_ps = (poll_us + 100) * PS_PER_US
+    mon = ErrorStateMonitor(dut, tb.chip)
+    # idle: one READ TEC/REC + READ EFLG every ERR_POLL_US
+    n0 = len(tb.spi_transactions())
+    await Timer(5 * poll_us + 10, "us")
+    polls = [t for t in tb.spi_transactions()[n0:] if list(t.mosi[:2]) == [R.INSTR_READ, R.TEC]]
+    assert len(polls) == 5, f"{len(polls)} error polls in 5 intervals"
+    gaps = {b.t_start_ps - a.t_start_ps for a, b in zip(polls, polls[1:])}
+    assert max(gaps) <= (poll_us + 20) * PS_PER_US, gaps
+    # error-passive by ACK errors
+    f = can.Message(arbitration_id=0x181, data=b"\x11\x22", is_extended_id=False)
+    await tb.send(f, buf=1, txp=2)
+    await tb.wait_for(lambda: tb.chip.tec >= 128, 20_000, step_us=20)
+    await tb.wait_for(lambda: int(dut.err_eflg_o.value) & R.EFLG_TXEP, bound_ps / PS_PER_US, 1)
+    # the peer comes back: successes count TEC down (no error interrupt), back to active
+    tb.peer._bitrate_bps = tb.bitrate
+    rng = random.Random(3)
+    while tb.chip.tec >= 96:
+        await tb.send(rand_frame(rng, ext=False), buf=0, txp=1)
+        await tb.wait_for(lambda: int(dut.tx_pending_o.value) == 0, 1_000, 1)
+    await Timer(poll_us + 100, "us")
+    assert int(dut.err_eflg_o.value) & EFLG_STATE == 0, "error-active again not seen"
+    assert int(dut.err_tec_o.value) == tb.chip.peek(R.TEC)
+    lag = mon.staleness_ps()
+    assert lag <= bound_ps, f"error state {lag / 1e6:.1f} us old"
+    # reinit: the copy is 0 from the moment the RESET instruction is issued
+    assert int(dut.err_tec_o.value) > 0
+
+    def resets() -> int:
+        return sum(1 for t in tb.spi_transactions() if t.mosi[0] == R.INSTR_RESET)
+
+    n_rst = resets()
+    await tb.pulse(dut.reinit_i)
+    await FallingEdge(dut.init_done_o)
+    await ReadOnly()
+    assert mon.dut_value() == (0, 0, 0), mon.dut_value()
+    assert resets() == n_rst, "cleared only after the RESET instruction"
+    await tb.wait_init()
+    await Timer(2 * poll_us, "us")
+    assert mon.dut_value() == mon.chip_value() == (0, 0, 0)
+    dut._log.info(f"error state: worst lag {lag / 1e6:.1f} us (bound {bound_ps / 1e6:.0f} us)")
+    tb.check_no_violations()
+    await Timer(1, "ns")
+
+
 # ============================================================================= benchmark
 def _bench_enabled() -> bool:
     return os.environ.get("BENCH") == "1"
@@ -586,6 +738,7 @@ BASE = {
     "MODE_POLL_MAX": 4,
     "INIT_RETRIES": 2,
     "RX_FIFO_DEPTH": 4,
+    "ERR_POLL_US": 500,
 }
 
 

@@ -51,7 +51,7 @@
 #define CM_REG_SYNC_COUNT_BYTE                0x028u
 #define CM_REG_TIME_US                        0x0Bu        /* RO: free-running microsecond counter of the master */
 #define CM_REG_TIME_US_BYTE                   0x02Cu
-#define CM_REG_CAN_STATUS                     0x0Cu        /* RO: CAN controller error state (last status read) */
+#define CM_REG_CAN_STATUS                     0x0Cu        /* RO: CAN controller error state: read from the MCP2510 every 500 us and after every error interrupt, at most 700 us old; 0 from each re-initialisation (RESET) on */
 #define CM_REG_CAN_STATUS_BYTE                0x030u
 #define CM_REG_CNT_RX_FRAMES                  0x10u        /* RO: counter: frames received */
 #define CM_REG_CNT_RX_FRAMES_BYTE             0x040u

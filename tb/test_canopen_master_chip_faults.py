@@ -1,0 +1,347 @@
+"""System bench of the master's reactions to faults of its MCP2510 (issue 13, items 1 and 4).
+
+``canopen_master_top`` with the strict MCP2510 model (any data-sheet rule broken fails the
+test, e.g. a TXnRTS request of a buffer whose SIDH/SIDL/DLC were not written since the chip's
+reset), the bit-exact CAN bus and two reference slaves. Faults come from the bus model:
+CRC errors on the master's own frames (``corrupt_next_frame``) and bus-off
+(``force_bus_off``, with and without the chip's automatic recovery), plus host re-inits and a
+failing initialisation attempt. Checks:
+
+* re-initialisation (CTRL.REINIT, INIT retry, bus-off the chip does not recover from) while
+  SYNC runs: no violation, no frame with ID 000h from the master, SYNC resumes with ID 080h and
+  the right DLC/counter, CAN_STATUS is 0 from the RESET instruction on;
+* the host's view of the error state (CAN_STATUS TEC/REC/EFLG, STATUS.ERR_PASSIVE and
+  STATUS.BUS_OFF) is never older than ``BOUND_US`` (the documented bound: the controller's
+  error poll interval of 500 us plus 200 us of SPI work that may be ahead of it).
+"""
+
+from __future__ import annotations
+
+import cocotb
+import pytest
+from cocotb.triggers import Timer, ValueChange
+
+from sim_models.can_bus import BUS_OFF_RECOVERY_BITS
+from sim_models.canopen_slave import NmtState
+from sim_models.mcp2510 import regs as MR
+from sim_models.sim_time import PS_PER_US
+from tb.tblib import regmap as R
+from tb.tblib.model_clock import sim_time_ps
+from tb.tblib.runner import run_cocotb
+from tb.tblib.system_tb import SystemTB
+
+CHIP = "master_mcp2510"
+#: documented bound of the host's error state behind the chip (ERR_POLL_US + 200 us)
+BOUND_US = 700
+#: bus-off longer than 128 frames of 160 bits -> re-initialisation (1 Mbit/s)
+BUSOFF_REINIT_US = 20_480
+EFLG_STATE = 0x3F
+
+
+class ErrorView:
+    """Samples the chip's TEC/REC/EFLG every 2 us and what the host reads (STATUS, CAN_STATUS)
+    every ``host_step_us``; ``staleness_us()`` is the largest age of a value the host read
+    (how long before the read the chip last held it; 0 if it still holds it)."""
+
+    def __init__(self, tb: SystemTB, host_step_us: float = 25) -> None:
+        self.tb = tb
+        self.chip_log: list[tuple[int, tuple[int, ...]]] = []
+        self.host_log: list[tuple[int, tuple[int, ...]]] = []
+        self.running = True
+        cocotb.start_soon(self._chip())
+        cocotb.start_soon(self._host(host_step_us))
+
+    def chip_value(self) -> tuple[int, ...]:
+        c = self.tb.chip
+        eflg = c.peek(MR.EFLG) & EFLG_STATE
+        return (c.peek(MR.TEC), c.peek(MR.REC), eflg, int(bool(eflg & MR.EFLG_TXBO)),
+                int(bool(eflg & (MR.EFLG_TXEP | MR.EFLG_RXEP))))
+
+    async def host_value(self) -> tuple[int, ...]:
+        st = await self.tb.host.read("STATUS")
+        cs = await self.tb.host.read("CAN_STATUS")
+        return (cs & 0xFF, cs >> 8 & 0xFF, cs >> 16 & EFLG_STATE,
+                int(bool(st & R.STATUS_BUS_OFF)), int(bool(st & R.STATUS_ERR_PASSIVE)))
+
+    async def _chip(self) -> None:
+        while self.running:
+            self.chip_log.append((sim_time_ps(), self.chip_value()))
+            await Timer(2, "us")
+
+    async def _host(self, step_us: float) -> None:
+        while self.running:
+            v = await self.host_value()
+            self.host_log.append((sim_time_ps(), v))  # the end of the reads: the worst case
+            await Timer(step_us, "us")
+
+    def saw(self, field: int, pred) -> bool:
+        return any(pred(v[field]) for _, v in self.host_log)
+
+    def staleness_us(self) -> float:
+        worst = 0
+        last_seen: list[dict[int, int]] = [{} for _ in range(5)]
+        chip = iter(self.chip_log)
+        pending = next(chip, None)
+        for t, h in self.host_log:
+            while pending is not None and pending[0] <= t:
+                for k, v in enumerate(pending[1]):
+                    last_seen[k][v] = pending[0]
+                pending = next(chip, None)
+            for k, v in enumerate(h):
+                assert v in last_seen[k], f"host read {h} at {t} ps: never held by the chip"
+                worst = max(worst, t - last_seen[k][v])
+        return worst / PS_PER_US
+
+
+class SyncPinCounter:
+    """Counts the TX2RTS# pulses (falling edges of mcp_txrts_n_o bit 2)."""
+
+    def __init__(self, dut) -> None:
+        self.sig = dut.mcp_txrts_n_o
+        self.pulses = 0
+        cocotb.start_soon(self._run())
+
+    async def _run(self) -> None:
+        prev = 1
+        while True:
+            await ValueChange(self.sig)
+            v = self.sig.value
+            now = int(v) >> 2 & 1 if v.is_resolvable else 1
+            if prev == 1 and now == 0:
+                self.pulses += 1
+            prev = now
+
+
+async def check_every_sync_fired(tb: SystemTB, pins: SyncPinCounter) -> None:
+    """Stop SYNC; every SYNC the master counted (SYNC_COUNT) was a TX2RTS# pulse, i.e. none
+    was started while TXB2 was unloaded (the controller would have dropped it)."""
+    await tb.host.sync_config(period_us=0, enable=False)
+    await Timer(20, "us")
+    count = await tb.host.read("SYNC_COUNT")
+    assert count == pins.pulses, f"SYNC_COUNT {count}, TX2RTS pulses {pins.pulses}"
+
+
+async def boot(tb: SystemTB) -> None:
+    await tb.reset()
+    await tb.wait_master_ready()
+    await tb.wait_for(lambda: all(s.nmt_state == NmtState.PRE_OPERATIONAL for s in tb.slaves),
+                      5_000, 50, "slaves pre-operational")
+    for s in tb.slaves:
+        s.write(0x1017, 0, 2)  # heartbeats every 2 ms: receive traffic during the faults
+
+
+def resets(tb: SystemTB) -> list[int]:
+    """Start times of the RESET instructions the chip received."""
+    return [t.t_start_ps for t in tb.pins.slave.transactions if t.mosi[:1] == b"\xc0"]
+
+
+def check_syncs(tb: SystemTB, t_from: int, n_min: int, overflow: int) -> None:
+    """At least ``n_min`` SYNC frames after ``t_from``, each ID 080h with the right DLC."""
+    syncs = [r for r in tb.frames(0x080) if r.t_start_ps >= t_from]
+    assert len(syncs) >= n_min, f"{len(syncs)} SYNCs after {t_from} ps"
+    for r in syncs:
+        assert r.sender == CHIP and not r.msg.is_remote_frame
+        if overflow >= 2:
+            assert r.msg.dlc == 1 and 1 <= r.msg.data[0] <= overflow, r.msg
+        else:
+            assert r.msg.dlc == 0, r.msg
+
+
+def check_clean(tb: SystemTB) -> None:
+    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
+    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
+    tb.check_models_clean()
+
+
+async def wait_syncs(tb: SystemTB, t_from: int, n: int) -> None:
+    await tb.wait_for(lambda: len([r for r in tb.frames(0x080) if r.t_start_ps >= t_from]) >= n,
+                      20_000, 20, f"{n} SYNCs")
+
+
+# ============================================================================== tests
+@cocotb.test(timeout_time=200, timeout_unit="ms")
+async def run_reinit_while_sync_runs(dut):
+    """Purpose: CTRL.REINIT while SYNC runs never fires an unloaded TXB2, and clears CAN_STATUS.
+
+    Verifies: three re-inits at different phases of a 400 us SYNC period (counter 1..4), each
+    after CRC errors made TEC > 0: CAN_STATUS reads TEC/REC/EFLG = 0 as soon as the RESET
+    instruction is on the SPI bus, the strict chip model sees no TXnRTS request of an unwritten
+    buffer, the master sends no ID 000h frame, and SYNC resumes with ID 080h, DLC 1 and a
+    counter byte in 1..4; every SYNC the master counted was a TX2RTS# pulse (none was asked for
+    while TXB2 was unloaded).
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
+    await boot(tb)
+    await tb.host.sync_config(period_us=400, overflow=4)
+    await wait_syncs(tb, 0, 5)
+    for k in range(3):
+        tb.bus.corrupt_next_frame(sender=CHIP, count=2)
+        await tb.wait_for(lambda: tb.chip.tec >= 16, 5_000, 5, "CRC errors")
+        await Timer(BOUND_US, "us")
+        assert (await tb.host.read("CAN_STATUS")) & 0xFF > 0, "TEC of the CRC errors not shown"
+        await Timer(50 + 137 * k, "us")
+        n_rst = len(resets(tb))
+        await tb.host.reinit()
+        await tb.wait_for(lambda n=n_rst: len(resets(tb)) > n, 2_000, 1, "RESET instruction")
+        assert await tb.host.read("CAN_STATUS") == 0, "CAN_STATUS not cleared by the RESET"
+        t_init = sim_time_ps()
+        await tb.wait_master_ready()
+        await wait_syncs(tb, t_init, 4)
+        check_syncs(tb, t_init, 4, 4)
+    await check_every_sync_fired(tb, pins)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=200, timeout_unit="ms")
+async def run_init_retry_while_sync_runs(dut):
+    """Purpose: an initialisation attempt that fails (chip stays in configuration mode) and is
+    retried from RESET while SYNC runs never fires an unloaded TXB2.
+
+    Verifies: after CTRL.REINIT the first mode request is ignored by the chip, the controller
+    polls MODE_POLL_MAX times, sends RESET again and succeeds; no violation of the strict chip
+    model, no ID 000h frame from the master, SYNC resumes (ID 080h, DLC 0), SYNC_COUNT equals
+    the TX2RTS# pulses.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
+    await boot(tb)
+    await tb.host.sync_config(period_us=300)
+    await wait_syncs(tb, 0, 3)
+    ignore = {"n": 0}
+    original = tb.chip._request_mode
+
+    def request_mode(reqop, t):
+        if ignore["n"] > 0:
+            ignore["n"] -= 1
+            return []
+        return original(reqop, t)
+
+    tb.chip._request_mode = request_mode
+    ignore["n"] = 1
+    n_rst = len(resets(tb))
+    await tb.host.reinit()
+    await tb.wait_for(lambda: len(resets(tb)) >= n_rst + 2, 5_000, 5, "retry from RESET")
+    t_retry = sim_time_ps()
+    await tb.wait_master_ready()
+    assert len(resets(tb)) == n_rst + 2 and ignore["n"] == 0
+    await wait_syncs(tb, t_retry, 5)
+    check_syncs(tb, t_retry, 5, 0)
+    await check_every_sync_fired(tb, pins)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=300, timeout_unit="ms")
+async def run_error_passive_and_active_followed(dut):
+    """Purpose: STATUS and CAN_STATUS follow the chip's error state within the bound.
+
+    Verifies: 28 CRC errors on the master's SYNCs make the chip error-passive (TEC >= 128); the
+    host reads STATUS.ERR_PASSIVE = 1 and the chip's TEC; each later successful SYNC lowers TEC
+    by 1 (no error interrupt) until the chip is error-active and below the warning limit again,
+    and the host reads ERR_PASSIVE = 0 and the new TEC. Every value the host read (TEC, REC,
+    EFLG, ERR_PASSIVE, BUS_OFF), sampled every 25 us, was held by the chip at most BOUND_US
+    before.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot(tb)
+    await tb.host.sync_config(period_us=100)
+    await wait_syncs(tb, 0, 3)
+    view = ErrorView(tb)
+    await Timer(10, "us")  # a first sample of the chip before the fault
+    tb.bus.corrupt_next_frame(sender=CHIP, count=28)
+    await tb.wait_for(lambda: tb.chip.error_state == "error_passive", 10_000, 5, "passive")
+    await tb.wait_for(lambda: tb.chip.tec < 96, 40_000, 50, "TEC below the warning limit")
+    await Timer(2 * BOUND_US, "us")
+    view.running = False
+    await Timer(50, "us")
+    assert view.saw(4, lambda v: v == 1), "STATUS.ERR_PASSIVE never 1"
+    assert view.saw(0, lambda v: v >= 200), "CAN_STATUS.TEC never showed the passive TEC"
+    last = view.host_log[-1][1]
+    assert last[4] == 0 and last[0] < 96, f"still passive or warning: {last}"
+    lag = view.staleness_us()
+    dut._log.info(f"error state: host view at most {lag:.0f} us old (bound {BOUND_US} us)")
+    assert lag <= BOUND_US, f"host error state {lag:.0f} us old"
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=300, timeout_unit="ms")
+async def run_bus_off_shown_and_recovered(dut):
+    """Purpose: bus-off shows in STATUS.BUS_OFF; the chip's own recovery is waited for, a chip
+    that does not recover is re-initialised after the bound, and SYNC resumes both ways.
+
+    Verifies: (1) bus-off with the chip's automatic recovery (1408 bit times): the host reads
+    STATUS.BUS_OFF = 1 during it and 0 after it, within BOUND_US; the master sends no RESET;
+    SYNC resumes (ID 080h, DLC 1, counter 1..4). (2) bus-off without recovery: BUS_OFF = 1
+    until the master re-initialises the chip, 20 480 us (128 frames of 160 bits) after the
+    bus-off plus at most BOUND_US; CAN_STATUS and BUS_OFF are 0 after the RESET; SYNC resumes;
+    no violation of the strict chip model, no ID 000h frame from the master, SYNC_COUNT equals
+    the TX2RTS# pulses.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    pins = SyncPinCounter(dut)
+    await boot(tb)
+    await tb.host.sync_config(period_us=500, overflow=4)
+    await wait_syncs(tb, 0, 3)
+    view = ErrorView(tb)
+    await Timer(10, "us")  # a first sample of the chip before the fault
+    # (1) automatic recovery
+    n_rst = len(resets(tb))
+    t_off = sim_time_ps()
+    tb.bus.force_bus_off(tb.chip)
+    rec_us = BUS_OFF_RECOVERY_BITS  # 1 bit = 1 us at 1 Mbit/s
+    await Timer(rec_us + BOUND_US, "us")
+    assert tb.chip.error_state == "error_active"
+    assert len(resets(tb)) == n_rst, "bus-off with recovery must not re-initialise the chip"
+    on = [t for t, v in view.host_log if v[3] == 1]
+    assert on, "STATUS.BUS_OFF never 1 during the bus-off"
+    assert on[0] - t_off <= BOUND_US * PS_PER_US
+    assert view.host_log[-1][1][3] == 0, "STATUS.BUS_OFF still 1 after the recovery"
+    await wait_syncs(tb, t_off + rec_us * PS_PER_US, 3)
+    check_syncs(tb, t_off, 3, 4)
+    # (2) no recovery: the master re-initialises the chip after the bound
+    tb.chip.auto_bus_off_recovery = False
+    t_off = sim_time_ps()
+    tb.bus.force_bus_off(tb.chip)
+    await tb.wait_for(lambda: len(resets(tb)) > n_rst, BUSOFF_REINIT_US + 2 * BOUND_US, 10,
+                      "re-initialisation after a bus-off without recovery")
+    t_rst = resets(tb)[n_rst]
+    tb.chip.auto_bus_off_recovery = True
+    delay_us = (t_rst - t_off) / PS_PER_US
+    dut._log.info(f"bus-off without recovery: RESET {delay_us:.1f} us after the bus-off")
+    assert BUSOFF_REINIT_US <= delay_us <= BUSOFF_REINIT_US + BOUND_US, delay_us
+    assert all(v[3] == 1 for t, v in view.host_log if t_off + BOUND_US * PS_PER_US < t < t_rst)
+    assert await tb.host.read("CAN_STATUS") == 0
+    assert not await tb.host.read("STATUS") & R.STATUS_BUS_OFF
+    await tb.wait_master_ready()
+    t_init = sim_time_ps()
+    await wait_syncs(tb, t_init, 4)
+    check_syncs(tb, t_init, 4, 4)
+    view.running = False
+    await Timer(50, "us")
+    lag = view.staleness_us()
+    dut._log.info(f"bus-off: host view at most {lag:.0f} us old (bound {BOUND_US} us)")
+    assert lag <= BOUND_US, f"host error state {lag:.0f} us old"
+    await check_every_sync_fired(tb, pins)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+# ============================================================================ pytest entry
+SYSTEM = {
+    "CLK_FREQ_HZ": 20_000_000,
+    "SPI_SCLK_HZ": 5_000_000,
+    "OSC_FREQ_HZ": 16_000_000,
+    "CAN_BITRATE_BPS": 1_000_000,
+    "MAX_NODES": 4,
+    "RESET_WAIT_US": 20,
+}
+
+
+@pytest.mark.sim
+def test_canopen_master_chip_faults(request):
+    run_cocotb(toplevel="canopen_master_top", module="tb.test_canopen_master_chip_faults",
+               name=request.node.name, parameters=SYSTEM, stop_time_ms=3000,
+               ieee_asserts="disable")
