@@ -70,9 +70,10 @@ CLASSES = ("frames", "burst", "babble", "crc", "bus_off", "master_reset", "chip_
 #: disruption: the 1408-bit bus-off recovery is the controller's; the master re-initialises
 #: at once (docs/canopen_master_top.md), one watchdog at most
 RECOVER_US = WATCHDOG_US + 5_000
-#: bound on the age of CAN_STATUS / STATUS error bits (issue 13: polled at least every 1 ms
-#: and on every error interrupt) plus one SPI status read
-ERR_POLL_US = 1_100
+#: bound on the age of CAN_STATUS / STATUS error bits: the controller polls TEC/REC/EFLG every
+#: 500 us and after every error interrupt, "the host's values are at most 700 us old"
+#: (docs/canopen_master_top.md, fault table)
+ERR_POLL_US = 700
 
 
 def _env_int(name: str, default: int) -> int:
