@@ -106,6 +106,8 @@ class Fuzz:
         self.snaps: list[ErrorSnapshot] = []
         self.forbidden: list = []
         self.crc_injected = 0
+        #: random host write sequences done, per class
+        self.host_writes: dict[str, int] = {}
         self.injecting = False
         self.sdo_running = False
         self.bit_ps = PS_PER_US * 1_000_000 // tb.bitrate
@@ -293,6 +295,7 @@ class Fuzz:
         while self.injecting:
             await Timer(rng.randint(200, 800), "us")
             kind = rng.choice(kinds)
+            self.host_writes[kind] = self.host_writes.get(kind, 0) + 1
             if kind == "host_ro":
                 before = await self.static_regs()
                 a, v = rng.choice(unmapped + ro), rng.getrandbits(32)
@@ -311,10 +314,12 @@ class Fuzz:
                 ch = rng.randrange(max(n_tpdo, n_rpdo), 32)
                 rpdo = rng.random() < 0.5
                 async with h._pdo_lock:
-                    await h.write("PDO_SEL", R.make("PDO_SEL", CH=ch, RPDO=int(rpdo)))
+                    await h.write("PDO_SEL", R.make("PDO_SEL", CH=ch, RPDO=int(rpdo),
+                                                    ACK=int(rng.random() < 0.5)))
                     await h.write("PDO_CFG", R.make("PDO_CFG", COB_ID=0x2F1, VALID=1, DLC=8,
                                                     TT=254))
-                    await h.write("PDO_CMD", R.PDO_CMD_TRIGGER)
+                    await h.write("PDO_DATA_LO", rng.getrandbits(32))
+                    await h.write("PDO_CMD", R.PDO_CMD_COMMIT | R.PDO_CMD_TRIGGER)
                 self.forbidden.append((sim_time_ps(), f"PDO_SEL.CH = {ch}",
                                        lambda f: f.can_id == 0x2F1))
                 after = await self.static_regs()
@@ -557,6 +562,7 @@ class Fuzz:
             "sdo_transfers": len(self.sdo_log),
             "sdo_aborted": sum(r.error for r in self.sdo_log),
             "crc_injected": self.crc_injected, "held_back": self.raw.held_back,
+            **{f"{k}_writes": v for k, v in self.host_writes.items()},
         })
         return self.rep
 
@@ -638,8 +644,9 @@ SHORT = {"seeds": (11, 12), "epochs": 2, "epoch_ms": 8,
 #: ``make bench``: two parts (one per xdist worker), each ``seeds_per_part`` seeds of
 #: ``epochs`` epochs of ``epoch_ms``: 19.2 s of epochs at the measured 5.8 injected frames
 #: per ms of epoch = about 111 000 frames (>= 100 000 asked); about 10.4 s simulated and
-#: 1 h (machine free) .. 3 h (machine shared) of wall time per part (docs/fuzz_bench.md). FUZZ_BENCH_SCALE (0..1] shortens
-#: every epoch for a quick look (the frame figure is then not reached).
+#: 1 h (machine free) .. 3 h (machine shared) of wall time per part (docs/fuzz_bench.md).
+#: FUZZ_BENCH_SCALE (0..1] shortens every epoch for a quick look (the frame figure is then
+#: not reached).
 BENCH = {"parts": 2, "seeds_per_part": 4, "epochs": 12, "epoch_ms": 200}
 
 
