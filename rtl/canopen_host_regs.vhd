@@ -277,6 +277,21 @@ architecture rtl of canopen_host_regs is
 
     end function sync_ovf_ok;
 
+    -- a configuration list entry is accepted: the end marker (node 0), or node 1..127 with a
+    -- value of 1..4 bytes (expedited download)
+
+    function acfg_entry_ok (node : std_logic_vector(7 downto 0);
+        size : std_logic_vector(2 downto 0)) return boolean is
+    begin
+
+        if unsigned(node) = 0 then
+            return true;
+        end if;
+
+        return node(7) = '0' and unsigned(size) >= 1 and unsigned(size) <= 4;
+
+    end function acfg_entry_ok;
+
     -- ---------------------------------------------------------------------------------------------
     -- Signals
     -- ---------------------------------------------------------------------------------------------
@@ -326,7 +341,8 @@ architecture rtl of canopen_host_regs is
     signal acfg_fail_sel  : std_logic_vector(3 downto 0);
     signal acfg_nodes     : std_logic;
     signal acfg_entry     : unsigned(7 downto 0);
-    signal acfg_node      : std_logic_vector(6 downto 0);
+    signal acfg_node      : std_logic_vector(7 downto 0);
+    signal acfg_ref       : std_logic;
     signal acfg_size      : std_logic_vector(2 downto 0);
     signal acfg_index     : std_logic_vector(15 downto 0);
     signal acfg_sub       : std_logic_vector(7 downto 0);
@@ -412,6 +428,7 @@ begin
             acfg_nodes     <= '0';
             acfg_entry     <= (others => '0');
             acfg_node      <= (others => '0');
+            acfg_ref       <= '0';
             acfg_size      <= (others => '0');
             acfg_index     <= (others => '0');
             acfg_sub       <= (others => '0');
@@ -539,9 +556,15 @@ begin
                     acfg_sub   <= wr_merge(ACFG_OBJ_SUBINDEX_HI_C downto ACFG_OBJ_SUBINDEX_LO_C);
                 end if;
                 -- ACFG_VALUE: store the entry now, then point at the next one
+                -- (an entry with NODE > 127, or a size other than 1..4, is refused)
                 if addr_is(avs_address_i, REG_ACFG_VALUE_C) then
-                    acfg_tbl_we_o <= '1';
-                    acfg_entry    <= acfg_entry + 1;
+                    if acfg_entry_ok(acfg_node, acfg_size) then
+                        acfg_tbl_we_o <= '1';
+                        acfg_entry    <= acfg_entry + 1;
+                        acfg_ref      <= '0';
+                    else
+                        acfg_ref <= '1';
+                    end if;
                 end if;
 
                 -- node slots (static indices)
@@ -755,7 +778,8 @@ begin
         put(REG_ACFG_ENTRY_C,
             at(std_logic_vector(acfg_entry), ACFG_ENTRY_ENTRY_HI_C, ACFG_ENTRY_ENTRY_LO_C)
             or at(acfg_node, ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C)
-            or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C));
+            or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C)
+            or at(acfg_ref, ACFG_ENTRY_REFUSED_C));
         put(REG_ACFG_OBJ_C,
             at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
             or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
@@ -851,7 +875,7 @@ begin
                                and addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) else
                           acfg_fail_sel;
     acfg_start_nodes_o <= acfg_nodes;
-    acfg_tbl_node_o    <= acfg_node;
+    acfg_tbl_node_o    <= acfg_node(6 downto 0);
     acfg_tbl_index_o   <= acfg_index;
     acfg_tbl_sub_o     <= acfg_sub;
     acfg_tbl_size_o    <= acfg_size;

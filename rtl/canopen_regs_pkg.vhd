@@ -68,7 +68,7 @@ package canopen_regs_pkg is
     constant REG_ACFG_STATUS_C     : natural := 16#79#; -- RO: automatic configuration status
     constant REG_ACFG_FAIL_C       : natural := 16#7A#; -- RO
     constant REG_ACFG_ABORT_C      : natural := 16#7B#; -- RO
-    constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW
+    constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW + RO
     constant REG_ACFG_OBJ_C        : natural := 16#7D#; -- RW
     constant REG_ACFG_VALUE_C      : natural := 16#7E#; -- WO
     constant REG_ACFG_FAIL_SEL_C   : natural := 16#7F#; -- RW
@@ -389,10 +389,11 @@ package canopen_regs_pkg is
     -- ACFG_ENTRY
     constant ACFG_ENTRY_ENTRY_HI_C : natural := 7;  -- RW
     constant ACFG_ENTRY_ENTRY_LO_C : natural := 0;
-    constant ACFG_ENTRY_NODE_HI_C  : natural := 14; -- RW: node-ID of the entry, 0 = end of the list
+    constant ACFG_ENTRY_NODE_HI_C  : natural := 15; -- RW
     constant ACFG_ENTRY_NODE_LO_C  : natural := 8;
     constant ACFG_ENTRY_SIZE_HI_C  : natural := 18; -- RW: value size in bytes, 1..4
     constant ACFG_ENTRY_SIZE_LO_C  : natural := 16;
+    constant ACFG_ENTRY_REFUSED_C  : natural := 30; -- RO
 
     -- ACFG_OBJ
     constant ACFG_OBJ_INDEX_HI_C    : natural := 15; -- RW: object index

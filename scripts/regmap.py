@@ -277,16 +277,20 @@ REGISTERS: tuple[Register, ...] = (
     R("ACFG_ABORT", 0x7B, "RO", "failure ACFG_FAIL_SEL.INDEX of the last run: SDO abort "
                                 "code",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code (received or sent by the master)")),
-    R("ACFG_ENTRY", 0x7C, "RW", "table entry written by the next ACFG_VALUE write",
-      F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each ACFG_VALUE "
-                                 "write"),
-      F("NODE", "14:8", "RW", 0, "node-ID of the entry, 0 = end of the list"),
-      F("SIZE", "18:16", "RW", 0, "value size in bytes, 1..4")),
+    R("ACFG_ENTRY", 0x7C, "RW + RO", "table entry written by the next ACFG_VALUE write",
+      F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each accepted "
+                                 "ACFG_VALUE write"),
+      F("NODE", "15:8", "RW", 0, "node-ID of the entry 1..127, 0 = end of the list"),
+      F("SIZE", "18:16", "RW", 0, "value size in bytes, 1..4"),
+      F("REFUSED", 30, "RO", 0, "the last ACFG_VALUE write was refused, nothing stored and "
+                                "ENTRY not advanced: NODE > 127, or NODE /= 0 with SIZE not "
+                                "1..4; cleared by the next accepted ACFG_VALUE write")),
     R("ACFG_OBJ", 0x7D, "RW", "object of the table entry written next",
       F("INDEX", "15:0", "RW", 0, "object index"),
       F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
     R("ACFG_VALUE", 0x7E, "WO", "value of the table entry; a write stores the whole entry",
-      F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame")),
+      F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame; the "
+                                     "entry is checked first (ACFG_ENTRY.REFUSED)")),
     R("ACFG_FAIL_SEL", 0x7F, "RW", "which failure of the last run ACFG_FAIL/ACFG_ABORT show",
       F("INDEX", "3:0", "RW", 0, "k-th failing node of the run, 0 = first; the first 16 "
                                  "failures are logged (ACFG_STATUS.NODES_FAIL counts all)")),
@@ -943,7 +947,8 @@ def gen_markdown() -> str:
         "writes.",
         "",
         "**REFUSED bits** (`NMT_CMD`, `SYNC_OVERFLOW`, `SDO_CMD` per channel, `ACFG_STATUS` for",
-        "`ACFG_CTRL.START`, `PDO_SEL` for `PDO_SEL`/`PDO_CFG`): REFUSED describes the **last write**",
+        "`ACFG_CTRL.START`, `ACFG_ENTRY` for `ACFG_VALUE`, `PDO_SEL` for `PDO_SEL`/`PDO_CFG`):",
+        "REFUSED describes the **last write**",
         "to that register only. A refused write sets it and changes nothing else: no frame is "
         "sent, no",
         "field is stored, and the BUSY/DONE bits of a transfer already running keep their "

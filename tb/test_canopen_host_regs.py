@@ -412,7 +412,10 @@ async def run_rw_reset_values_and_readback(dut):
         for fname, f in R.REGISTERS[name].fields.items():
             if f.access == "RW" and (name, fname) in RW_OUTPUTS:
                 out = tb.output_of(name, fname, slot)
-                assert out == R.get_field(name, fname, value), f"{name}.{fname}({slot}) output"
+                want = R.get_field(name, fname, value)
+                if (name, fname) == ("ACFG_ENTRY", "NODE"):
+                    want &= 0x7F  # 8-bit field (> 127 refused at ACFG_VALUE), 7-bit port
+                assert out == want, f"{name}.{fname}({slot}) output"
     # byte enables: only byte 1 of SYNC_PERIOD_US and byte 2 of SDO_COB change
     await host.write("SYNC_PERIOD_US", 0x11223344)
     await host.write("SYNC_PERIOD_US", 0xAABBCCDD, byteenable=0b0010)
@@ -777,7 +780,9 @@ async def run_refused_writes_change_nothing(dut):
     first read. SYNC_OVERFLOW: 1, 241 and 255 are refused (value and sync_overflow_o kept,
     REFUSED = 1), 0 and 2..240 accepted (REFUSED = 0); while CTRL.SYNC_EN = 1 and
     SYNC_PERIOD_US /= 0 a different value is refused and the same value accepted; after
-    SYNC_EN = 0 the change is accepted.
+    SYNC_EN = 0 the change is accepted. ACFG_VALUE with ACFG_ENTRY.NODE 128/255 or SIZE 0/5/7
+    (NODE /= 0) stores nothing (no acfg_tbl_we_o, ENTRY not advanced, ACFG_ENTRY.REFUSED);
+    NODE 1..127 with SIZE 1..4 and the end marker (NODE 0, any SIZE) are stored.
     """
     tb = TB(dut)
     await tb.reset()
@@ -818,6 +823,18 @@ async def run_refused_writes_change_nothing(dut):
     await host.write("SYNC_PERIOD_US", 1000)
     await host.write("CTRL", 0)
     await ovf(4, True, 4)
+    # ACFG_VALUE: an entry with NODE > 127 or SIZE not 1..4 is not stored, ENTRY stays
+    for node, size, ok in ((3, 0, False), (3, 5, False), (3, 7, False), (128, 2, False),
+                           (255, 4, False), (3, 1, True), (127, 4, True), (0, 0, True),
+                           (0, 7, True)):
+        await host.write("ACFG_ENTRY", R.make("ACFG_ENTRY", ENTRY=10, NODE=node, SIZE=size))
+        c0 = tb.cycle
+        await host.write("ACFG_VALUE", 0x1234)
+        word = await host.read("ACFG_ENTRY")
+        await tb.settle()
+        assert bool(word & R.ACFG_ENTRY_REFUSED) == (not ok), (node, size, hex(word))
+        assert R.get_field("ACFG_ENTRY", "ENTRY", word) == (11 if ok else 10), (node, size)
+        assert len(tb.pulses_of("acfg_tbl_we_o", c0)) == int(ok), (node, size)
 
 
 @cocotb.test(timeout_time=5, timeout_unit="ms")

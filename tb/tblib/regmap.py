@@ -325,9 +325,10 @@ ACFG_ABORT_CODE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 ACFG_ENTRY_ENTRY_SHIFT = 0
 ACFG_ENTRY_ENTRY_MASK = 0xFF  # bits 7:0, RW
 ACFG_ENTRY_NODE_SHIFT = 8
-ACFG_ENTRY_NODE_MASK = 0x7F00  # bits 14:8, RW
+ACFG_ENTRY_NODE_MASK = 0xFF00  # bits 15:8, RW
 ACFG_ENTRY_SIZE_SHIFT = 16
 ACFG_ENTRY_SIZE_MASK = 0x70000  # bits 18:16, RW
+ACFG_ENTRY_REFUSED = 0x40000000  # bit 30, RO
 # ACFG_OBJ
 ACFG_OBJ_INDEX_SHIFT = 0
 ACFG_OBJ_INDEX_MASK = 0xFFFF  # bits 15:0, RW
@@ -969,11 +970,12 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "ACFG_ENTRY": RegInfo(
-        addr=0x7C, access="RW", reset=0x0, stride=0,
+        addr=0x7C, access="RW + RO", reset=0x0, stride=0,
         fields={
             "ENTRY": FieldInfo(7, 0, "RW", 0x0),
-            "NODE": FieldInfo(14, 8, "RW", 0x0),
+            "NODE": FieldInfo(15, 8, "RW", 0x0),
             "SIZE": FieldInfo(18, 16, "RW", 0x0),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
         },
     ),
     "ACFG_OBJ": RegInfo(
