@@ -301,7 +301,8 @@ NODE_GROUP = Group(
     registers=(
         R("NODE_CFG", 0x20, "RW", "node supervision configuration of slot k",
           F("NODE_ID", "6:0", "RW", 0, "node-ID, 0 = slot unused"),
-          F("MODE", "9:8", "RW", 0, "00 off, 01 heartbeat consumer, 10 node guarding"),
+          F("MODE", "9:8", "RW", 0, "00 off, 01 heartbeat consumer, 10 node guarding, 11 "
+                                    "reserved: acts as 00 (boot-ups still recorded)"),
           F("AUTOSTART", 10, "RW", 0, "send NMT start after the node's boot-up"),
           F("RESET_ON_LOSS", 11, "RW", 0, "send NMT reset node when the node is lost")),
         R("NODE_TIME", 0x21, "RW", "node supervision times of slot k",
