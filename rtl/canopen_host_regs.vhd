@@ -14,8 +14,12 @@
 --   command strobes (NMT, SDO start, re-init, clear, EMCY pop) with their fields, shows the
 --   status inputs of the other blocks, and passes the SDO_BUF window through to the buffer RAM
 --   of the selected SDO channel and the PDO_WIN window (C0h..FFh) to the PDO engine's register
---   port. SDO_CMD.DONE is kept per channel (set by that channel's done event, cleared by the
---   next SDO_CMD write while the channel is selected).
+--   port. SDO_CMD.DONE is kept per channel (set by that channel's done event, cleared when the
+--   channel accepts the next SDO_CMD write: sdo_start_i; a refused write leaves it).
+--   * Input validation: SYNC_OVERFLOW takes 0 or 2..240 only, and no other value while the
+--     SYNC producer runs (CiA 301 1019h); a refused write keeps the value and sets
+--     SYNC_OVERFLOW.REFUSED until the next accepted write. NMT and SDO commands are checked
+--     where they are executed (canopen_master_core, canopen_sdo_channels).
 --   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
 --     avs_read_i by exactly one cycle for every address. SDO_BUF reads drive sdo_buf_addr_o in
 --     the read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in the next one.
@@ -66,7 +70,7 @@ entity canopen_host_regs is
         reinit_o         : out   std_logic;                     -- pulse: CTRL.REINIT
         nmt_req_o        : out   std_logic;                     -- pulse: NMT_CMD written
         nmt_cs_o         : out   std_logic_vector(7 downto 0);  -- NMT command specifier
-        nmt_node_o       : out   std_logic_vector(6 downto 0);  -- NMT node-ID, 0 = all
+        nmt_node_o       : out   std_logic_vector(7 downto 0);  -- NMT node-ID, 0 = all, > 127 bad
         sync_period_us_o : out   std_logic_vector(31 downto 0); -- SYNC period [us], 0 = off
         sync_overflow_o  : out   std_logic_vector(7 downto 0);  -- SYNC counter overflow
         sync_window_us_o : out   std_logic_vector(31 downto 0); -- synchronous window [us]
@@ -84,7 +88,7 @@ entity canopen_host_regs is
         -- SDO client request
         sdo_req_o        : out   std_logic;                     -- pulse: start a transfer
         sdo_upload_o     : out   std_logic;                     -- 1 upload, 0 download
-        sdo_node_o       : out   std_logic_vector(6 downto 0);  -- server node-ID
+        sdo_node_o       : out   std_logic_vector(7 downto 0);  -- server node-ID (0, > 127 bad)
         sdo_index_o      : out   std_logic_vector(15 downto 0); -- object index
         sdo_subindex_o   : out   std_logic_vector(7 downto 0);  -- object sub-index
         sdo_size_o       : out   std_logic_vector(10 downto 0); -- download size [bytes]
@@ -148,7 +152,8 @@ entity canopen_host_regs is
         sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code
         sdo_abort_sent_i : in    std_logic;                     -- 1: the client aborted
         sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred
-        sdo_refused_i    : in    std_logic;                     -- sticky: last request refused
+        sdo_refused_i    : in    std_logic;                     -- the last request was refused
+        sdo_start_i      : in    std_logic_vector(3 downto 0);  -- request accepted, per channel
         sdo_chan_busy_i  : in    std_logic_vector(3 downto 0);  -- busy, per channel
         -- automatic configuration status
         acfg_busy_i       : in    std_logic;                     -- list running
@@ -257,6 +262,36 @@ architecture rtl of canopen_host_regs is
 
     end function addr_is;
 
+    -- a SYNC_OVERFLOW write is accepted: 0 or 2..240 (CiA 301 1019h), and while the SYNC
+    -- producer runs only the value it already has
+
+    function sync_ovf_ok (v : std_logic_vector(7 downto 0); cur : std_logic_vector(7 downto 0);
+        running : boolean) return boolean is
+    begin
+
+        if unsigned(v) = 1 or unsigned(v) > 240 then
+            return false;
+        end if;
+
+        return not running or v = cur;
+
+    end function sync_ovf_ok;
+
+    -- a configuration list entry is accepted: the end marker (node 0), or node 1..127 with a
+    -- value of 1..4 bytes (expedited download)
+
+    function acfg_entry_ok (node : std_logic_vector(7 downto 0);
+        size : std_logic_vector(2 downto 0)) return boolean is
+    begin
+
+        if unsigned(node) = 0 then
+            return true;
+        end if;
+
+        return node(7) = '0' and unsigned(size) >= 1 and unsigned(size) <= 4;
+
+    end function acfg_entry_ok;
+
     -- ---------------------------------------------------------------------------------------------
     -- Signals
     -- ---------------------------------------------------------------------------------------------
@@ -283,11 +318,13 @@ architecture rtl of canopen_host_regs is
     type slot_life_t is array (0 to MAX_NODES - 1) of std_logic_vector(7 downto 0);
 
     -- RW registers
-    signal sync_en        : std_logic;
-    signal omni_en        : std_logic;
-    signal irq_enable     : std_logic_vector(irq_bits_c - 1 downto 0);
-    signal sync_period    : std_logic_vector(31 downto 0);
-    signal sync_overflow  : std_logic_vector(7 downto 0);
+    signal sync_en       : std_logic;
+    signal omni_en       : std_logic;
+    signal irq_enable    : std_logic_vector(irq_bits_c - 1 downto 0);
+    signal sync_period   : std_logic_vector(31 downto 0);
+    signal sync_overflow : std_logic_vector(7 downto 0);
+    -- the last SYNC_OVERFLOW write was refused (reserved value, or a change while SYNC runs)
+    signal ovf_refused    : std_logic;
     signal sync_window    : std_logic_vector(31 downto 0);
     signal node_id        : slot_id_t;
     signal node_mode      : slot_mode_t;
@@ -304,7 +341,8 @@ architecture rtl of canopen_host_regs is
     signal acfg_fail_sel  : std_logic_vector(3 downto 0);
     signal acfg_nodes     : std_logic;
     signal acfg_entry     : unsigned(7 downto 0);
-    signal acfg_node      : std_logic_vector(6 downto 0);
+    signal acfg_node      : std_logic_vector(7 downto 0);
+    signal acfg_ref       : std_logic;
     signal acfg_size      : std_logic_vector(2 downto 0);
     signal acfg_index     : std_logic_vector(15 downto 0);
     signal acfg_sub       : std_logic_vector(7 downto 0);
@@ -371,6 +409,7 @@ begin
             irq_status     <= (others => '0');
             sync_period    <= (others => '0');
             sync_overflow  <= (others => '0');
+            ovf_refused    <= '0';
             sync_window    <= (others => '0');
             node_id        <= (others => (others => '0'));
             node_mode      <= (others => (others => '0'));
@@ -389,6 +428,7 @@ begin
             acfg_nodes     <= '0';
             acfg_entry     <= (others => '0');
             acfg_node      <= (others => '0');
+            acfg_ref       <= '0';
             acfg_size      <= (others => '0');
             acfg_index     <= (others => '0');
             acfg_sub       <= (others => '0');
@@ -428,8 +468,9 @@ begin
                 irq_status <= irq_status or ev_v;
             end if;
 
-            -- SDO done per channel: set by its done event, cleared by the next SDO_CMD write
-            sdo_done <= sdo_done or ev_sdo_done_i;
+            -- SDO done per channel: set by its done event, cleared when the channel accepts the
+            -- next SDO_CMD write (a refused write leaves it: REFUSED changes nothing else)
+            sdo_done <= (sdo_done and not sdo_start_i) or ev_sdo_done_i;
             if ev_acfg_done_i = '1' then
                 acfg_done <= '1';
             end if;
@@ -450,9 +491,17 @@ begin
                     sync_period <= wr_merge(SYNC_PERIOD_US_VALUE_HI_C downto
                                             SYNC_PERIOD_US_VALUE_LO_C);
                 end if;
+                -- CiA 301 1019h: 0 or 2..240; no change while the SYNC producer runs
                 if addr_is(avs_address_i, REG_SYNC_OVERFLOW_C) then
-                    sync_overflow <= wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
-                                              SYNC_OVERFLOW_VALUE_LO_C);
+                    if sync_ovf_ok(wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
+                                            SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
+                                   sync_en = '1' and unsigned(sync_period) /= 0) then
+                        sync_overflow <= wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
+                                                  SYNC_OVERFLOW_VALUE_LO_C);
+                        ovf_refused   <= '0';
+                    else
+                        ovf_refused <= '1';
+                    end if;
                 end if;
                 if addr_is(avs_address_i, REG_SYNC_WINDOW_US_C) then
                     sync_window <= wr_merge(SYNC_WINDOW_US_VALUE_HI_C downto
@@ -470,15 +519,6 @@ begin
                 end if;
                 if addr_is(avs_address_i, REG_SDO_CMD_C) then
                     sdo_req_o <= '1';
-
-                    for c in 0 to 3 loop
-
-                        if sdo_sel = c then
-                            sdo_done(c) <= ev_sdo_done_i(c);
-                        end if;
-
-                    end loop;
-
                 end if;
                 -- a channel number the core does not have is ignored
                 if addr_is(avs_address_i, REG_SDO_SEL_C)
@@ -516,9 +556,15 @@ begin
                     acfg_sub   <= wr_merge(ACFG_OBJ_SUBINDEX_HI_C downto ACFG_OBJ_SUBINDEX_LO_C);
                 end if;
                 -- ACFG_VALUE: store the entry now, then point at the next one
+                -- (an entry with NODE > 127, or a size other than 1..4, is refused)
                 if addr_is(avs_address_i, REG_ACFG_VALUE_C) then
-                    acfg_tbl_we_o <= '1';
-                    acfg_entry    <= acfg_entry + 1;
+                    if acfg_entry_ok(acfg_node, acfg_size) then
+                        acfg_tbl_we_o <= '1';
+                        acfg_entry    <= acfg_entry + 1;
+                        acfg_ref      <= '0';
+                    else
+                        acfg_ref <= '1';
+                    end if;
                 end if;
 
                 -- node slots (static indices)
@@ -652,7 +698,8 @@ begin
             at(nmt_busy_i, NMT_CMD_NMT_BUSY_C) or at(nmt_refused_i, NMT_CMD_REFUSED_C));
         put(REG_SYNC_PERIOD_US_C, sync_period);
         put(REG_SYNC_OVERFLOW_C,
-            at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C));
+            at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C)
+            or at(ovf_refused, SYNC_OVERFLOW_REFUSED_C));
         put(REG_SYNC_WINDOW_US_C, sync_window);
         put(REG_SYNC_COUNT_C, sync_count_i);
         put(REG_TIME_US_C, time_us_i);
@@ -700,7 +747,8 @@ begin
             at(sdo_index, SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
             or at(sdo_subindex, SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C));
         put(REG_SDO_CMD_C,
-            at(sdo_busy_i, SDO_CMD_BUSY_C) or at(sdo_done(sdo_sel), SDO_CMD_DONE_C)
+            at(sdo_busy_i, SDO_CMD_BUSY_C)
+            or at(sdo_done(sdo_sel) and not sdo_start_i(sdo_sel), SDO_CMD_DONE_C)
             or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C)
             or at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
             or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C));
@@ -712,7 +760,7 @@ begin
             or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
         put(REG_SDO_SEL_C,
             at(sdo_chan, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C)
-            or at(sdo_done, SDO_SEL_DONE_HI_C, SDO_SEL_DONE_LO_C)
+            or at(sdo_done and not sdo_start_i, SDO_SEL_DONE_HI_C, SDO_SEL_DONE_LO_C)
             or at(sdo_chan_busy_i, SDO_SEL_BUSY_HI_C, SDO_SEL_BUSY_LO_C)
             or at(std_logic_vector(to_unsigned(N_SDO, 3)), SDO_SEL_CHANNELS_HI_C,
                      SDO_SEL_CHANNELS_LO_C));
@@ -730,7 +778,8 @@ begin
         put(REG_ACFG_ENTRY_C,
             at(std_logic_vector(acfg_entry), ACFG_ENTRY_ENTRY_HI_C, ACFG_ENTRY_ENTRY_LO_C)
             or at(acfg_node, ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C)
-            or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C));
+            or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C)
+            or at(acfg_ref, ACFG_ENTRY_REFUSED_C));
         put(REG_ACFG_OBJ_C,
             at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
             or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
@@ -826,7 +875,7 @@ begin
                                and addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) else
                           acfg_fail_sel;
     acfg_start_nodes_o <= acfg_nodes;
-    acfg_tbl_node_o    <= acfg_node;
+    acfg_tbl_node_o    <= acfg_node(6 downto 0);
     acfg_tbl_index_o   <= acfg_index;
     acfg_tbl_sub_o     <= acfg_sub;
     acfg_tbl_size_o    <= acfg_size;

@@ -145,7 +145,7 @@ architecture rtl of canopen_master_core is
     signal host_reinit    : std_logic;
     signal nmt_req        : std_logic;
     signal nmt_cs         : std_logic_vector(7 downto 0);
-    signal nmt_node       : std_logic_vector(6 downto 0);
+    signal nmt_node       : std_logic_vector(7 downto 0);
     signal sync_period_us : std_logic_vector(31 downto 0);
     signal sync_overflow  : std_logic_vector(7 downto 0);
     signal sync_window_us : std_logic_vector(31 downto 0);
@@ -160,7 +160,7 @@ architecture rtl of canopen_master_core is
     signal emcy_pop       : std_logic;
     signal sdo_req        : std_logic;
     signal sdo_upload     : std_logic;
-    signal sdo_node       : std_logic_vector(6 downto 0);
+    signal sdo_node       : std_logic_vector(7 downto 0);
     signal sdo_index      : std_logic_vector(15 downto 0);
     signal sdo_subindex   : std_logic_vector(7 downto 0);
     signal sdo_size       : std_logic_vector(10 downto 0);
@@ -287,6 +287,7 @@ architecture rtl of canopen_master_core is
     -- per channel (bit c): busy, host transfer done
     signal sdo_ch_busy : std_logic_vector(3 downto 0);
     signal sdo_ch_done : std_logic_vector(3 downto 0);
+    signal sdo_ch_go   : std_logic_vector(3 downto 0);
     -- one strobe per aborted transfer (channels ending together are counted one by one)
     signal sdo_cnt_abort : std_logic;
     -- channel 0 as seen by the configuration list
@@ -419,6 +420,27 @@ architecture rtl of canopen_master_core is
     signal init_done_q    : std_logic;
     signal init_fail_q    : std_logic;
 
+    -- ---------------------------------------------------------------------------------------------
+    -- Host input validation (docs/register_map.md, REFUSED bits)
+    -- ---------------------------------------------------------------------------------------------
+    -- NMT_CMD: CS is one of the five CiA 301 commands and NODE is 0..127; the request is
+    -- accepted; REFUSED as the host reads it (the decision already in the cycle of the request)
+    signal nmt_cmd_ok   : std_logic;
+    signal nmt_accept   : std_logic;
+    signal nmt_ref_view : std_logic;
+    -- ACFG_STATUS.REFUSED as the host reads it
+    signal acfg_ref_view : std_logic;
+    -- SYNC_OVERFLOW as the last cycle saw it; a change invalidates the SYNC preloaded in TXB2
+    -- (sync_stale: also one being loaded) and restarts the counter at 1
+    signal sync_ovf_q   : std_logic_vector(7 downto 0);
+    signal sync_ovf_chg : std_logic;
+    signal sync_stale   : std_logic;
+    -- the EMCY FIFO head as the host sees it: 0 while the FIFO is empty (its RAM has no reset)
+    signal emcy_head_ok : std_logic;
+    signal emcy_node_h  : std_logic_vector(6 downto 0);
+    signal emcy_data_h  : std_logic_vector(63 downto 0);
+    signal emcy_time_h  : std_logic_vector(31 downto 0);
+
     function node_id_ok (id : cob_id_t) return boolean is
     begin
 
@@ -513,6 +535,25 @@ begin
 
     end process classify_proc;
 
+    -- host NMT command admission
+    nmt_cmd_ok   <= '1' when (nmt_cs = NMT_CS_START_C or nmt_cs = NMT_CS_STOP_C
+                                 or nmt_cs = NMT_CS_PREOP_C or nmt_cs = NMT_CS_RESET_NODE_C
+                                 or nmt_cs = NMT_CS_RESET_COMM_C) and nmt_node(7) = '0' else
+                    '0';
+    nmt_accept   <= nmt_cmd_ok and not nmt_pending and not omni_en;
+    nmt_ref_view <= not nmt_accept when nmt_req = '1' else
+                    nmt_refused;
+
+    -- EMCY FIFO head towards the host: defined (0) while the FIFO is empty
+    emcy_head_ok <= '1' when unsigned(emcy_count) /= 0 else
+                    '0';
+    emcy_node_h  <= emcy_node when emcy_head_ok = '1' else
+                    (others => '0');
+    emcy_data_h  <= emcy_data when emcy_head_ok = '1' else
+                    (others => '0');
+    emcy_time_h  <= emcy_time when emcy_head_ok = '1' else
+                    (others => '0');
+
     -- St2, St8..St10: the selected source presents its frame
     frame_ready <= '1' when in_sync_gen = '1' else
                    '1' when in_nmt_gen = '1' and (nmt_pending = '1' or acfg_nmt_pending = '1'
@@ -549,6 +590,8 @@ begin
             sync_count       <= (others => '0');
             sync_sent        <= (others => '0');
             sync_fire        <= '0';
+            sync_ovf_q       <= (others => '0');
+            sync_stale       <= '0';
             err_can          <= '0';
             err_busoff       <= '0';
             err_reinit       <= '0';
@@ -585,14 +628,15 @@ begin
             end if;
 
             -- host NMT command --------------------------------------------------------------
-            -- a write while one is pending (or in Omni-ID mode) is refused, never overwrites
-            if nmt_req = '1' and (nmt_pending = '1' or omni_en = '1') then
+            -- a write while one is pending (or in Omni-ID mode, or with a command specifier
+            -- CiA 301 does not define, or a node-ID above 127) is refused, never overwrites
+            if nmt_req = '1' and nmt_accept = '0' then
                 nmt_refused <= '1';
             elsif nmt_req = '1' then
                 nmt_refused  <= '0';
                 nmt_pending  <= '1';
                 nmt_cmd_cs   <= nmt_cs;
-                nmt_cmd_node <= nmt_node;
+                nmt_cmd_node <= nmt_node(6 downto 0);
             end if;
 
             -- NMT start of a configured node (canopen_autoconfig) -----------------------------
@@ -703,7 +747,7 @@ begin
                 tx_requested <= '1';
             end if;
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
-                sync_loaded <= '1';
+                sync_loaded <= not sync_stale;
             end if;
             -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
             -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
@@ -751,6 +795,18 @@ begin
                 elsif unsigned(sync_overflow) >= 2 then
                     sync_counter <= sync_counter + 1;
                 end if;
+            end if;
+            -- SYNC_OVERFLOW changed (CiA 301 1019h): the counter restarts at 1 and the SYNC
+            -- preloaded in TXB2 (or being loaded) is built again, so the next SYNC sent uses
+            -- the new value; a SYNC already started (TX2RTS fired) is not affected
+            sync_ovf_q <= sync_overflow;
+            if in_encap = '1' and gen_src = 0 then
+                sync_stale <= '0';
+            end if;
+            if sync_ovf_chg = '1' then
+                sync_counter <= to_unsigned(1, 8);
+                sync_loaded  <= '0';
+                sync_stale   <= '1';
             end if;
 
             -- error latch --------------------------------------------------------------------
@@ -820,6 +876,9 @@ begin
     end process datapath_proc;
 
     watchdog <= '1' when wd_us = WATCHDOG_US else '0';
+
+    sync_ovf_chg <= '1' when sync_overflow /= sync_ovf_q else
+                    '0';
     -- masked from the entry into St0 (G1) until the controller has dropped init_done
     init_done_fsm <= ctl_init_done_i and not reinit_wait and not reinit_pulse
                      and not (in_init and state_change);
@@ -948,6 +1007,7 @@ begin
             refused_o       => sdo_refused,
             chan_busy_o     => sdo_ch_busy,
             chan_done_o     => sdo_ch_done,
+            chan_go_o       => sdo_ch_go,
             cnt_abort_o     => sdo_cnt_abort,
             own_i           => acfg_run,
             own_req_i       => acfg_sdo_req,
@@ -1188,6 +1248,10 @@ begin
 
     acfg_run <= acfg_busy or acfg_start_pend;
 
+    -- ACFG_STATUS.REFUSED as the host reads it: the decision already in the cycle of the START
+    acfg_ref_view <= (acfg_busy or acfg_start_pend or omni_en) when acfg_start = '1' else
+                     acfg_refused;
+
     acfg_inst : entity work.canopen_autoconfig
         generic map (
             CFG_DEPTH => CFG_DEPTH
@@ -1299,7 +1363,7 @@ begin
             bus_off_i                => can_eflg(eflg_txbo_c),
             err_passive_i            => can_eflg(4) or can_eflg(3),
             nmt_busy_i               => nmt_pending,
-            nmt_refused_i            => nmt_refused,
+            nmt_refused_i            => nmt_ref_view,
             sync_count_i             => std_logic_vector(sync_count),
             time_us_i                => std_logic_vector(time_us),
             tec_i                    => can_tec,
@@ -1313,19 +1377,20 @@ begin
             node_last_i              => st_last,
             emcy_count_i             => emcy_count,
             emcy_lost_i              => emcy_lost,
-            emcy_node_i              => emcy_node,
-            emcy_data_i              => emcy_data,
-            emcy_time_i              => emcy_time,
+            emcy_node_i              => emcy_node_h,
+            emcy_data_i              => emcy_data_h,
+            emcy_time_i              => emcy_time_h,
             sdo_busy_i               => sdo_busy,
             sdo_error_i              => sdo_error,
             sdo_abort_code_i         => sdo_abort_code,
             sdo_abort_sent_i         => sdo_abort_sent,
             sdo_size_i               => sdo_xfer_size,
             sdo_refused_i            => sdo_refused,
+            sdo_start_i              => sdo_ch_go,
             sdo_chan_busy_i          => sdo_ch_busy,
             sdo_buf_rdata_i          => sdo_buf_rdata,
             acfg_busy_i              => acfg_run,
-            acfg_refused_i           => acfg_refused,
+            acfg_refused_i           => acfg_ref_view,
             acfg_nodes_ok_i          => acfg_nodes_ok,
             acfg_nodes_fail_i        => acfg_nodes_fail,
             acfg_fail_node_i         => acfg_fail_node,

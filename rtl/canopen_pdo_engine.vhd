@@ -335,6 +335,11 @@ architecture rtl of canopen_pdo_engine is
     signal sel_rpdo : std_logic;
     signal sel_t_ok : std_logic;
     signal sel_r_ok : std_logic;
+    -- host input validation: the PDO_CFG write data is allowed (DLC 0..8, TT not 241..251);
+    -- a PDO_CFG write is carried out; the last PDO_SEL / PDO_CFG write was refused
+    signal cfg_ok    : std_logic;
+    signal wr_cfg_ok : std_logic;
+    signal sel_ref   : std_logic;
     -- TPDO staging register; '1' in the cycle after a TPDO select (tb_q holds the channel's
     -- latest committed data); staging as the host sees it
     signal staging  : std_logic_vector(63 downto 0);
@@ -441,9 +446,18 @@ begin
     sel_t_ok <= '1' when sel_rpdo = '0' and sel_ch < N_TPDO else '0';
     sel_r_ok <= '1' when sel_rpdo = '1' and sel_ch < N_RPDO else '0';
     commit_t <= wr_cmd and sel_t_ok and reg_wdata_i(PDO_CMD_COMMIT_C);
+
     stg_view <= staging when stg_load = '0' else
                 (others => '0') when stg_zero = '1' else
                 tb_q;
+
+    -- host input validation of a PDO_CFG write: DLC 0..8, TT not reserved (241..251)
+    cfg_ok    <= '1' when unsigned(reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)) <= 8
+                          and (unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C)) < 241
+                         or unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C))
+                         > 251) else
+                 '0';
+    wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok);
 
     elig_gen : for k in 0 to N_TPDO - 1 generate
         t_elig(k) <= t_due(k) and t_valid(k) and not t_inh_1st(k) when t_inh_cnt(k) = 0 else
@@ -516,23 +530,19 @@ begin
 
     begin
 
-        -- commit: the staging register into the inactive bank of the selected TPDO
-        act_v := '0';
-
-        for k in 0 to N_TPDO - 1 loop
-
-            if sel_ch = k then
-                act_v := t_act(k);
-            end if;
-
-        end loop;
-
+        -- commit: the staging register into the inactive bank of the selected TPDO (static
+        -- indices only: sel_ch may name a channel that does not exist, and sel_t_ok follows it
+        -- one delta later)
         t_we <= commit_t;
         t_wa <= 0;
 
-        if sel_t_ok = '1' then
-            t_wa <= 2 * sel_ch + 1 - bit_int(act_v);
-        end if;
+        for k in 0 to N_TPDO - 1 loop
+
+            if sel_ch = k and sel_rpdo = '0' then
+                t_wa <= 2 * k + 1 - bit_int(t_act(k));
+            end if;
+
+        end loop;
 
         t_wd <= stg_view;
 
@@ -786,13 +796,25 @@ begin
             stg_zero <= '0';
             snap_new <= '0';
             snap_ok  <= '0';
+            sel_ref  <= '0';
         elsif rising_edge(clk_i) then
+            -- REFUSED: the last PDO_SEL / PDO_CFG write (nothing changed by a refused one)
+            if wr_cfg = '1' then
+                sel_ref <= not wr_cfg_ok;
+            end if;
             if wr_sel = '1' then
                 w_ch     := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto
                                                             PDO_SEL_CH_LO_C)));
                 sel_ch   <= w_ch;
                 sel_rpdo <= reg_wdata_i(PDO_SEL_RPDO_C);
-                snap_ok  <= '0';
+                -- a channel that does not exist: the window shows none (reads 0, ignores writes)
+                if (reg_wdata_i(PDO_SEL_RPDO_C) = '0' and w_ch < N_TPDO)
+                   or (reg_wdata_i(PDO_SEL_RPDO_C) = '1' and w_ch < N_RPDO) then
+                    sel_ref <= '0';
+                else
+                    sel_ref <= '1';
+                end if;
+                snap_ok <= '0';
 
                 for k in 0 to N_RPDO - 1 loop
 
@@ -817,10 +839,10 @@ begin
             if stg_load = '1' then
                 staging <= stg_view;
             end if;
-            if wr_lo = '1' and sel_rpdo = '0' then
+            if wr_lo = '1' and sel_t_ok = '1' then
                 staging(31 downto 0) <= reg_wdata_i;
             end if;
-            if wr_hi = '1' and sel_rpdo = '0' then
+            if wr_hi = '1' and sel_t_ok = '1' then
                 staging(63 downto 32) <= reg_wdata_i;
             end if;
         end if;
@@ -1077,7 +1099,7 @@ begin
                 new_v  := t_new(k);
                 late_v := false;
 
-                if wr_cfg = '1' and host_k then
+                if wr_cfg_ok = '1' and host_k then
                     t_cob(k)   <= reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
                     t_rtr(k)   <= reg_wdata_i(PDO_CFG_RTR_C);
                     t_valid(k) <= reg_wdata_i(PDO_CFG_VALID_C);
@@ -1246,7 +1268,7 @@ begin
                 new_v  := r_new(k);
                 miss_v := false;
 
-                if wr_cfg = '1' and host_k then
+                if wr_cfg_ok = '1' and host_k then
                     r_cob(k)   <= reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
                     r_rtr(k)   <= reg_wdata_i(PDO_CFG_RTR_C);
                     r_valid(k) <= reg_wdata_i(PDO_CFG_VALID_C);
@@ -1397,7 +1419,7 @@ begin
 
         put(off_sel_c,
             at(std_logic_vector(to_unsigned(sel_ch, 5)), PDO_SEL_CH_HI_C, PDO_SEL_CH_LO_C)
-            or at(sel_rpdo, PDO_SEL_RPDO_C));
+            or at(sel_rpdo, PDO_SEL_RPDO_C) or at(sel_ref, PDO_SEL_REFUSED_C));
         put(off_info_c,
             at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
                   PDO_INFO_N_TPDO_LO_C)

@@ -68,7 +68,7 @@ package canopen_regs_pkg is
     constant REG_ACFG_STATUS_C     : natural := 16#79#; -- RO: automatic configuration status
     constant REG_ACFG_FAIL_C       : natural := 16#7A#; -- RO
     constant REG_ACFG_ABORT_C      : natural := 16#7B#; -- RO
-    constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW
+    constant REG_ACFG_ENTRY_C      : natural := 16#7C#; -- RW + RO
     constant REG_ACFG_OBJ_C        : natural := 16#7D#; -- RW
     constant REG_ACFG_VALUE_C      : natural := 16#7E#; -- WO
     constant REG_ACFG_FAIL_SEL_C   : natural := 16#7F#; -- RW
@@ -173,7 +173,7 @@ package canopen_regs_pkg is
     -- VERSION
     constant VERSION_MINOR_HI_C : natural := 15; -- RO: minor version
     constant VERSION_MINOR_LO_C : natural := 0;
-    constant VERSION_MAJOR_HI_C : natural := 31; -- RO: major version
+    constant VERSION_MAJOR_HI_C : natural := 31; -- RO
     constant VERSION_MAJOR_LO_C : natural := 16;
 
     -- CTRL
@@ -216,7 +216,7 @@ package canopen_regs_pkg is
     -- NMT_CMD
     constant NMT_CMD_CS_HI_C    : natural := 7;  -- WO
     constant NMT_CMD_CS_LO_C    : natural := 0;
-    constant NMT_CMD_NODE_HI_C  : natural := 14; -- WO: target node-ID, 0 = all nodes
+    constant NMT_CMD_NODE_HI_C  : natural := 15; -- WO
     constant NMT_CMD_NODE_LO_C  : natural := 8;
     constant NMT_CMD_REFUSED_C  : natural := 30; -- RO
     constant NMT_CMD_NMT_BUSY_C : natural := 31; -- RO
@@ -226,8 +226,9 @@ package canopen_regs_pkg is
     constant SYNC_PERIOD_US_VALUE_LO_C : natural := 0;
 
     -- SYNC_OVERFLOW
-    constant SYNC_OVERFLOW_VALUE_HI_C : natural := 7; -- RW
+    constant SYNC_OVERFLOW_VALUE_HI_C : natural := 7;  -- RW
     constant SYNC_OVERFLOW_VALUE_LO_C : natural := 0;
+    constant SYNC_OVERFLOW_REFUSED_C  : natural := 30; -- RO
 
     -- SYNC_WINDOW_US
     constant SYNC_WINDOW_US_VALUE_HI_C : natural := 31; -- RW: window in us, 0 = none
@@ -299,19 +300,19 @@ package canopen_regs_pkg is
     constant EMCY_STATUS_LOST_C     : natural := 8; -- W1C
 
     -- EMCY_NODE
-    constant EMCY_NODE_NODE_HI_C : natural := 6; -- RO: node-ID
+    constant EMCY_NODE_NODE_HI_C : natural := 6; -- RO: node-ID; 0 while the FIFO is empty
     constant EMCY_NODE_NODE_LO_C : natural := 0;
 
     -- EMCY_DATA_LO
-    constant EMCY_DATA_LO_DATA_HI_C : natural := 31; -- RO: byte 0 (error code low byte) in 7:0
+    constant EMCY_DATA_LO_DATA_HI_C : natural := 31; -- RO
     constant EMCY_DATA_LO_DATA_LO_C : natural := 0;
 
     -- EMCY_DATA_HI
-    constant EMCY_DATA_HI_DATA_HI_C : natural := 31; -- RO: byte 4 in 7:0
+    constant EMCY_DATA_HI_DATA_HI_C : natural := 31; -- RO: byte 4 in 7:0; 0 while the FIFO is empty
     constant EMCY_DATA_HI_DATA_LO_C : natural := 0;
 
     -- EMCY_TIME_MS
-    constant EMCY_TIME_MS_VALUE_HI_C : natural := 31; -- RO: time in ms
+    constant EMCY_TIME_MS_VALUE_HI_C : natural := 31; -- RO: time in ms; 0 while the FIFO is empty
     constant EMCY_TIME_MS_VALUE_LO_C : natural := 0;
 
     -- EMCY_POP
@@ -325,11 +326,11 @@ package canopen_regs_pkg is
     constant SDO_OBJ_SUBINDEX_LO_C : natural := 16;
 
     -- SDO_CMD
-    constant SDO_CMD_NODE_HI_C      : natural := 6;  -- WO: server node-ID
+    constant SDO_CMD_NODE_HI_C      : natural := 7;  -- WO
     constant SDO_CMD_NODE_LO_C      : natural := 0;
-    constant SDO_CMD_UPLOAD_C       : natural := 7;  -- WO
     constant SDO_CMD_SIZE_HI_C      : natural := 18; -- WO: download: bytes in SDO_BUF to send
     constant SDO_CMD_SIZE_LO_C      : natural := 8;
+    constant SDO_CMD_UPLOAD_C       : natural := 20; -- WO
     constant SDO_CMD_BUSY_C         : natural := 0;  -- RO: transfer running
     constant SDO_CMD_DONE_C         : natural := 1;  -- RO
     constant SDO_CMD_ERROR_C        : natural := 2;  -- RO
@@ -388,10 +389,11 @@ package canopen_regs_pkg is
     -- ACFG_ENTRY
     constant ACFG_ENTRY_ENTRY_HI_C : natural := 7;  -- RW
     constant ACFG_ENTRY_ENTRY_LO_C : natural := 0;
-    constant ACFG_ENTRY_NODE_HI_C  : natural := 14; -- RW: node-ID of the entry, 0 = end of the list
+    constant ACFG_ENTRY_NODE_HI_C  : natural := 15; -- RW
     constant ACFG_ENTRY_NODE_LO_C  : natural := 8;
     constant ACFG_ENTRY_SIZE_HI_C  : natural := 18; -- RW: value size in bytes, 1..4
     constant ACFG_ENTRY_SIZE_LO_C  : natural := 16;
+    constant ACFG_ENTRY_REFUSED_C  : natural := 30; -- RO
 
     -- ACFG_OBJ
     constant ACFG_OBJ_INDEX_HI_C    : natural := 15; -- RW: object index
@@ -434,10 +436,11 @@ package canopen_regs_pkg is
     constant NODE_LAST_MS_VALUE_LO_C : natural := 0;
 
     -- PDO_SEL
-    constant PDO_SEL_CH_HI_C : natural := 4; -- RW
-    constant PDO_SEL_CH_LO_C : natural := 0;
-    constant PDO_SEL_RPDO_C  : natural := 7; -- RW
-    constant PDO_SEL_ACK_C   : natural := 8; -- pulse
+    constant PDO_SEL_CH_HI_C   : natural := 4;  -- RW
+    constant PDO_SEL_CH_LO_C   : natural := 0;
+    constant PDO_SEL_RPDO_C    : natural := 7;  -- RW
+    constant PDO_SEL_ACK_C     : natural := 8;  -- pulse
+    constant PDO_SEL_REFUSED_C : natural := 30; -- RO
 
     -- PDO_INFO
     constant PDO_INFO_N_TPDO_HI_C : natural := 5;  -- RO: TPDO channels (generic N_TPDO)
@@ -675,7 +678,7 @@ package canopen_regs_pkg is
     constant OMNI_MISSING_NODE_LO_C    : natural := 8;
 
     -- OMNI_PMB_INFO
-    constant OMNI_PMB_INFO_SENDER_HI_C : natural := 7;  -- RO: byte 0
+    constant OMNI_PMB_INFO_SENDER_HI_C : natural := 7;  -- RO: byte 0 (0 until the first frame)
     constant OMNI_PMB_INFO_SENDER_LO_C : natural := 0;
     constant OMNI_PMB_INFO_TYPE_HI_C   : natural := 15; -- RO: byte 1
     constant OMNI_PMB_INFO_TYPE_LO_C   : natural := 8;
@@ -685,11 +688,11 @@ package canopen_regs_pkg is
     constant OMNI_PMB_INFO_NEW_C       : natural := 31; -- W1C: a frame was stored; write 1 clears
 
     -- OMNI_PMB_LO
-    constant OMNI_PMB_LO_DATA_HI_C : natural := 31; -- RO: byte 2 in 7:0 .. byte 5 in 31:24
+    constant OMNI_PMB_LO_DATA_HI_C : natural := 31; -- RO
     constant OMNI_PMB_LO_DATA_LO_C : natural := 0;
 
     -- OMNI_PMB_HI
-    constant OMNI_PMB_HI_DATA_HI_C : natural := 15; -- RO: byte 6 in 7:0, byte 7 in 15:8
+    constant OMNI_PMB_HI_DATA_HI_C : natural := 15; -- RO
     constant OMNI_PMB_HI_DATA_LO_C : natural := 0;
 
     -- OMNI_BUS_BITS
@@ -736,7 +739,7 @@ package canopen_regs_pkg is
     -- Reset words (registers whose every readable field has one)
     -- ---------------------------------------------------------------------------------------------
     constant ID_RESET_C              : std_logic_vector(31 downto 0) := x"434F3031";
-    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00010002";
+    constant VERSION_RESET_C         : std_logic_vector(31 downto 0) := x"00020000";
     constant CTRL_RESET_C            : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_STATUS_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
     constant IRQ_ENABLE_RESET_C      : std_logic_vector(31 downto 0) := x"00000000";
@@ -754,6 +757,10 @@ package canopen_regs_pkg is
     constant CNT_GUARD_ERR_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
     constant CNT_CAN_ERROR_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
     constant CNT_EMCY_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
+    constant EMCY_NODE_RESET_C       : std_logic_vector(31 downto 0) := x"00000000";
+    constant EMCY_DATA_LO_RESET_C    : std_logic_vector(31 downto 0) := x"00000000";
+    constant EMCY_DATA_HI_RESET_C    : std_logic_vector(31 downto 0) := x"00000000";
+    constant EMCY_TIME_MS_RESET_C    : std_logic_vector(31 downto 0) := x"00000000";
     constant EMCY_POP_RESET_C        : std_logic_vector(31 downto 0) := x"00000000";
     constant SDO_OBJ_RESET_C         : std_logic_vector(31 downto 0) := x"00000000";
     constant SDO_TIMEOUT_MS_RESET_C  : std_logic_vector(31 downto 0) := x"000003E8";
@@ -784,5 +791,8 @@ package canopen_regs_pkg is
     constant OMNI_PARAM_LO_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
     constant OMNI_PARAM_HI_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
     constant OMNI_SLOT_CFG_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PMB_INFO_RESET_C   : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PMB_LO_RESET_C     : std_logic_vector(31 downto 0) := x"00000000";
+    constant OMNI_PMB_HI_RESET_C     : std_logic_vector(31 downto 0) := x"00000000";
 
 end package canopen_regs_pkg;

@@ -12,12 +12,15 @@
 --   * Host port: the host selects a channel (SDO_SEL.CHAN = host_chan_i); SDO_CMD starts a
 --     transfer on it with the object fields of the host registers, the status outputs and the
 --     buffer port show / access the selected channel.
---   * A request is refused, nothing is sent and the channel's sticky refused flag is set, when
---     the core is in Omni-ID mode (enable_i = 0), the channel is busy, channel 0 belongs to the
---     configuration list (own_i = 1), or another running transfer (or the list's waiting
---     request) uses the same request or response COB-ID: one transfer per SDO server at a time,
---     so every response frame belongs to exactly one channel. The flag clears with the next
---     accepted request on that channel.
+--   * A request is refused, nothing is sent and the channel's refused flag is set, when the
+--     core is in Omni-ID mode (enable_i = 0), the node-ID is 0 or above 127, the channel is
+--     busy, channel 0 belongs to the configuration list (own_i = 1), or another running
+--     transfer (or the list's waiting request) uses the same request or response COB-ID: one
+--     transfer per SDO server at a time, so every response frame belongs to exactly one
+--     channel. The flag describes the last request on that channel: it clears with the next
+--     accepted one; refused_o shows the decision already in the cycle of the request, so a
+--     host read right after the SDO_CMD write sees it. chan_go_o marks an accepted request
+--     (the host block clears that channel's DONE with it).
 --   * Owner port: while own_i = 1 channel 0 belongs to canopen_autoconfig (default COB-IDs,
 --     600h/580h + node). Its request waits (never refused) until no other channel talks to the
 --     same node; every other channel's transfer ends within its bound (canopen_sdo_client), so
@@ -56,7 +59,7 @@ entity canopen_sdo_channels is
         host_chan_i    : in    std_logic_vector(1 downto 0);  -- selected channel (< N_SDO)
         host_req_i     : in    std_logic;                     -- pulse: SDO_CMD written
         host_upload_i  : in    std_logic;                     -- 1 upload, 0 download
-        host_node_i    : in    std_logic_vector(6 downto 0);  -- server node-ID
+        host_node_i    : in    std_logic_vector(7 downto 0);  -- server node-ID, 1..127
         host_index_i   : in    std_logic_vector(15 downto 0); -- object index
         host_sub_i     : in    std_logic_vector(7 downto 0);  -- object sub-index
         host_size_i    : in    std_logic_vector(10 downto 0); -- download size [bytes]
@@ -74,10 +77,11 @@ entity canopen_sdo_channels is
         abort_code_o : out   std_logic_vector(31 downto 0); -- its abort code
         abort_sent_o : out   std_logic;                     -- 1: the master aborted
         size_o       : out   std_logic_vector(10 downto 0); -- bytes transferred
-        refused_o    : out   std_logic;                     -- sticky: last request refused
+        refused_o    : out   std_logic;                     -- the last request was refused
         -- all channels (bit c = channel c, bits >= N_SDO read 0)
         chan_busy_o : out   std_logic_vector(3 downto 0); -- transfer running (or owned)
         chan_done_o : out   std_logic_vector(3 downto 0); -- strobe: host transfer ended
+        chan_go_o   : out   std_logic_vector(3 downto 0); -- strobe: host request accepted
         cnt_abort_o : out   std_logic;                    -- strobe: one transfer aborted
         -- owner of channel 0 (canopen_autoconfig), default COB-IDs
         own_i          : in    std_logic;                     -- channel 0 belongs to the owner
@@ -184,8 +188,9 @@ architecture rtl of canopen_sdo_channels is
     -- waiting request); the owner's request collides with a running transfer on channels 1..
     signal host_clash : std_logic;
     signal own_clash  : std_logic;
-    -- the host request is accepted on the selected channel this cycle
+    -- the host request is accepted on the selected channel this cycle; its node-ID is valid
     signal host_go : std_logic;
+    signal node_ok : std_logic;
     -- the owner's request waits for its node to be free
     signal own_pend : std_logic;
     signal own_go   : std_logic;
@@ -206,8 +211,12 @@ begin
     sel_ok <= '1' when to_integer(unsigned(host_chan_i)) < N_SDO else
               '0';
 
-    host_req_cob <= eff_cob(host_cob_req_i, FC_SDO_RX_C, host_node_i);
-    host_rsp_cob <= eff_cob(host_cob_rsp_i, FC_SDO_TX_C, host_node_i);
+    -- node-ID 1..127 (CiA 301); 0 and 128..255 are refused
+    node_ok <= '1' when host_node_i(7) = '0' and host_node_i(6 downto 0) /= "0000000" else
+               '0';
+
+    host_req_cob <= eff_cob(host_cob_req_i, FC_SDO_RX_C, host_node_i(6 downto 0));
+    host_rsp_cob <= eff_cob(host_cob_rsp_i, FC_SDO_TX_C, host_node_i(6 downto 0));
     own_req_cob  <= cob_id(FC_SDO_RX_C, own_node_i);
     own_rsp_cob  <= cob_id(FC_SDO_TX_C, own_node_i);
 
@@ -249,7 +258,7 @@ begin
 
     end process clash_proc;
 
-    host_go <= '1' when host_req_i = '1' and enable_i = '1' and sel_ok = '1'
+    host_go <= '1' when host_req_i = '1' and enable_i = '1' and sel_ok = '1' and node_ok = '1'
                         and c_busy(sel) = '0' and host_clash = '0'
                         and not (sel = 0 and (own_i = '1' or own_pend = '1')) else
                '0';
@@ -303,9 +312,9 @@ begin
                        '0';
     end generate req_gen;
 
-    c_node     <= host_node_i;
+    c_node     <= host_node_i(6 downto 0);
     c0_node    <= own_node_i when own_i = '1' else
-                  host_node_i;
+                  host_node_i(6 downto 0);
     c0_index   <= own_index_i when own_i = '1' else
                   host_index_i;
     c0_sub     <= own_sub_i when own_i = '1' else
@@ -538,11 +547,14 @@ begin
                               c_busy(c);
             chan_done_o(c) <= c_done(c) and not own_i when c = 0 else
                               c_done(c);
+            chan_go_o(c)   <= host_go when sel = c else
+                              '0';
         end generate have_gen;
 
         none_gen : if c >= N_SDO generate
             chan_busy_o(c) <= '0';
             chan_done_o(c) <= '0';
+            chan_go_o(c)   <= '0';
         end generate none_gen;
 
     end generate status_gen;
@@ -553,9 +565,10 @@ begin
     abort_code_o <= c_abort(sel);
     abort_sent_o <= c_asent(sel);
     size_o       <= c_size(sel);
-    -- in the cycle a request is decided the old flag is not shown (a read right after the
-    -- SDO_CMD write must not see the outcome of the previous request)
-    refused_o   <= refused(sel) and not host_req_i;
+    -- in the cycle a request is decided its outcome is shown, not the previous one (a read right
+    -- after the SDO_CMD write sees the outcome of that write)
+    refused_o   <= not host_go when host_req_i = '1' and sel_ok = '1' else
+                   refused(sel);
     buf_rdata_o <= c_rdata(sel);
 
     own_idle_o  <= not c_busy(0) and not own_pend;

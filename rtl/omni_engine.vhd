@@ -497,6 +497,9 @@ architecture rtl of omni_engine is
     signal pmb_hi     : std_logic_vector(15 downto 0);
     signal pmb_new    : std_logic;
     signal pmb_ovr    : std_logic;
+    -- a parameter frame was ever stored: until then the mailbox reads 0 (its data registers
+    -- have no reset)
+    signal pmb_any : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Receiver
@@ -886,6 +889,7 @@ begin
             snap_ok    <= '0';
             pmb_new    <= '0';
             pmb_ovr    <= '0';
+            pmb_any    <= '0';
             rx_st      <= S_RX_IDLE;
             rx_done_q  <= '0';
             rx_reply_q <= '0';
@@ -1190,6 +1194,7 @@ begin
             end if;
             if c_param = '1' then
                 pmb_new <= '1';
+                pmb_any <= '1';
                 if pmb_new = '1' and not (wr_pmbi = '1'
                                           and reg_wdata_i(OMNI_PMB_INFO_NEW_C) = '1') then
                     pmb_ovr <= '1';
@@ -1574,13 +1579,17 @@ begin
         put(off_miss_c,
             at(missing, N_SLOTS - 1, 0)
             or at(miss_node, OMNI_MISSING_NODE_HI_C, OMNI_MISSING_NODE_LO_C));
-        put(off_pmbi_c,
-            at(pmb_sender, OMNI_PMB_INFO_SENDER_HI_C, OMNI_PMB_INFO_SENDER_LO_C)
-            or at(pmb_type, OMNI_PMB_INFO_TYPE_HI_C, OMNI_PMB_INFO_TYPE_LO_C)
-            or at(pmb_dlc, OMNI_PMB_INFO_DLC_HI_C, OMNI_PMB_INFO_DLC_LO_C)
-            or at(pmb_ovr, OMNI_PMB_INFO_OVERRUN_C) or at(pmb_new, OMNI_PMB_INFO_NEW_C));
-        put(off_pmblo_c, pmb_lo);
-        put(off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
+        put(off_pmbi_c, at(pmb_ovr, OMNI_PMB_INFO_OVERRUN_C) or at(pmb_new, OMNI_PMB_INFO_NEW_C));
+
+        if pmb_any = '1' then
+            put(off_pmbi_c,
+                at(pmb_sender, OMNI_PMB_INFO_SENDER_HI_C, OMNI_PMB_INFO_SENDER_LO_C)
+                or at(pmb_type, OMNI_PMB_INFO_TYPE_HI_C, OMNI_PMB_INFO_TYPE_LO_C)
+                or at(pmb_dlc, OMNI_PMB_INFO_DLC_HI_C, OMNI_PMB_INFO_DLC_LO_C));
+            put(off_pmblo_c, pmb_lo);
+            put(off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
+        end if;
+
         put(off_bits_c, at(std_logic_vector(f_bits), OMNI_BUS_BITS_BITS_HI_C,
                            OMNI_BUS_BITS_BITS_LO_C));
 

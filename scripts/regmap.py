@@ -145,8 +145,9 @@ REGISTERS: tuple[Register, ...] = (
     R("ID", 0x00, "RO", 'identification, "CO01"',
       F("VALUE", "31:0", "RO", 0x434F3031, 'ASCII "CO01"')),
     R("VERSION", 0x01, "RO", "register map version",
-      F("MINOR", "15:0", "RO", 0x0002, "minor version"),
-      F("MAJOR", "31:16", "RO", 0x0001, "major version")),
+      F("MINOR", "15:0", "RO", 0x0000, "minor version"),
+      F("MAJOR", "31:16", "RO", 0x0002, "major version (2: SDO_CMD.NODE is 8 bits wide, "
+                                        "UPLOAD moved to bit 20)")),
     R("CTRL", 0x02, "RW + pulse", "control",
       F("SYNC_EN", 0, "RW", 0, "1: the SYNC producer runs (SYNC_PERIOD_US /= 0); in Omni-ID "
                                "mode: the periodic command cycle runs"),
@@ -171,16 +172,25 @@ REGISTERS: tuple[Register, ...] = (
       *(F(n, i, "RW", 0, f"enable {n}") for i, (n, _) in enumerate(IRQ_BITS))),
     R("NMT_CMD", 0x06, "WO + RO", "NMT command: a write sends one NMT frame",
       F("CS", "7:0", "WO", None, "command specifier (01h start, 02h stop, 80h pre-op, "
-                                 "81h reset node, 82h reset communication)"),
-      F("NODE", "14:8", "WO", None, "target node-ID, 0 = all nodes"),
-      F("REFUSED", 30, "RO", None, "sticky: a write while NMT_BUSY (or in Omni-ID mode) was "
-                                   "refused, nothing sent; cleared by the next accepted write"),
+                                 "81h reset node, 82h reset communication; any other value "
+                                 "is refused)"),
+      F("NODE", "15:8", "WO", None, "target node-ID 1..127, 0 = all nodes (128..255 is "
+                                    "refused)"),
+      F("REFUSED", 30, "RO", 0, "the last write was refused, nothing sent (NMT_BUSY, Omni-ID "
+                                "mode, CS not one of the five, NODE > 127); cleared by the "
+                                "next accepted write; valid from the first read after the "
+                                "write"),
       F("NMT_BUSY", 31, "RO", None, "an NMT command is being sent; write only when 0")),
     R("SYNC_PERIOD_US", 0x07, "RW", "SYNC period (CiA 301 1006h)",
       F("VALUE", "31:0", "RW", 0, "period in us, 0 = SYNC off")),
     R("SYNC_OVERFLOW", 0x08, "RW", "SYNC counter overflow value (CiA 301 1019h)",
-      F("VALUE", "7:0", "RW", 0, "0 = SYNC without counter byte, else 2..240 (not checked "
-                                 "here)")),
+      F("VALUE", "7:0", "RW", 0, "0 = SYNC without counter byte, 2..240 = counter byte "
+                                 "running 1..VALUE; a new value restarts the counter at 1 and "
+                                 "is used from the next SYNC sent"),
+      F("REFUSED", 30, "RO", 0, "the last write was refused, VALUE unchanged: 1 or "
+                                "241..255 (CiA 301 reserved), or a different value while "
+                                "the SYNC producer runs (CTRL.SYNC_EN = 1 and SYNC_PERIOD_US "
+                                "/= 0; CiA 301 1019h); cleared by the next accepted write")),
     R("SYNC_WINDOW_US", 0x09, "RW", "synchronous window length (CiA 301 1007h)",
       F("VALUE", "31:0", "RW", 0, "window in us, 0 = none")),
     R("SYNC_COUNT", 0x0A, "RO", "SYNC frames sent",
@@ -208,13 +218,14 @@ REGISTERS: tuple[Register, ...] = (
       F("COUNT", "6:0", "RO", None, "EMCY messages in the FIFO"),
       F("LOST", 8, "W1C", None, "an EMCY was lost (FIFO full); write 1: emcy_clear_o pulse")),
     R("EMCY_NODE", 0x61, "RO", "EMCY FIFO head: sender",
-      F("NODE", "6:0", "RO", None, "node-ID")),
+      F("NODE", "6:0", "RO", 0, "node-ID; 0 while the FIFO is empty")),
     R("EMCY_DATA_LO", 0x62, "RO", "EMCY FIFO head: bytes 0..3",
-      F("DATA", "31:0", "RO", None, "byte 0 (error code low byte) in 7:0")),
+      F("DATA", "31:0", "RO", 0, "byte 0 (error code low byte) in 7:0; 0 while the FIFO is "
+                                 "empty")),
     R("EMCY_DATA_HI", 0x63, "RO", "EMCY FIFO head: bytes 4..7",
-      F("DATA", "31:0", "RO", None, "byte 4 in 7:0")),
+      F("DATA", "31:0", "RO", 0, "byte 4 in 7:0; 0 while the FIFO is empty")),
     R("EMCY_TIME_MS", 0x64, "RO", "EMCY FIFO head: reception time",
-      F("VALUE", "31:0", "RO", None, "time in ms")),
+      F("VALUE", "31:0", "RO", 0, "time in ms; 0 while the FIFO is empty")),
     R("EMCY_POP", 0x65, "WO", "EMCY FIFO pop",
       F("POP", "31:0", "WO", None, "any write: emcy_pop_o pulse (drops the head)")),
     R("SDO_OBJ", 0x70, "RW", "SDO object address",
@@ -222,17 +233,19 @@ REGISTERS: tuple[Register, ...] = (
       F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
     R("SDO_CMD", 0x71, "WO + RO", "SDO command: a write starts a transfer on channel "
                                   "SDO_SEL.CHAN",
-      F("NODE", "6:0", "WO", None, "server node-ID"),
-      F("UPLOAD", 7, "WO", None, "1: upload (read from the node), 0: download"),
+      F("NODE", "7:0", "WO", None, "server node-ID 1..127 (0 and 128..255 are refused)"),
       F("SIZE", "18:8", "WO", None, "download: bytes in SDO_BUF to send"),
+      F("UPLOAD", 20, "WO", None, "1: upload (read from the node), 0: download"),
       F("BUSY", 0, "RO", None, "transfer running"),
-      F("DONE", 1, "RO", 0, "sticky: set when a transfer ends, cleared by the next start"),
+      F("DONE", 1, "RO", 0, "sticky: set when a transfer ends, cleared by the next accepted "
+                            "start (a refused write leaves it)"),
       F("ERROR", 2, "RO", None, "last transfer aborted (SDO_ABORT holds the code)"),
       F("XFER_SIZE", "18:8", "RO", None, "bytes transferred (upload: bytes in SDO_BUF)"),
-      F("REFUSED", 30, "RO", None, "sticky: the last write was refused, nothing sent (channel "
-                                   "busy or owned by the configuration list, another channel "
-                                   "talks to the same node, or Omni-ID mode); cleared by the "
-                                   "next accepted write"),
+      F("REFUSED", 30, "RO", 0, "the last write to this channel was refused, nothing sent, "
+                                "BUSY/DONE unchanged (channel busy or owned by the "
+                                "configuration list, another channel talks to the same node, "
+                                "NODE 0 or > 127, or Omni-ID mode); cleared by the next "
+                                "accepted write; valid from the first read after the write"),
       F("ABORT_SENT", 31, "RO", None, "1: the master sent the abort, 0: the node did")),
     R("SDO_ABORT", 0x72, "RO", "SDO abort code of the last transfer",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code")),
@@ -259,9 +272,9 @@ REGISTERS: tuple[Register, ...] = (
       F("BUSY", 0, "RO", None, "the list is running (it owns SDO channel 0: its "
                                "SDO_CMD.BUSY reads 1)"),
       F("DONE", 1, "RO", 0, "sticky: the last run finished, cleared by the next START"),
-      F("REFUSED", 2, "RO", None, "sticky: the last START was refused, nothing run (the list "
-                                  "was running, or Omni-ID mode); cleared by the next "
-                                  "accepted START"),
+      F("REFUSED", 2, "RO", 0, "the last START was refused, nothing run (the list was "
+                               "running, or Omni-ID mode); cleared by the next accepted START; "
+                               "valid from the first read after the write"),
       F("NODES_OK", "15:8", "RO", None, "nodes whose entries all succeeded in the last run"),
       F("NODES_FAIL", "23:16", "RO", None, "nodes stopped by a failing entry in the last run")),
     R("ACFG_FAIL", 0x7A, "RO", "failure ACFG_FAIL_SEL.INDEX of the last run (0 = first)",
@@ -270,16 +283,20 @@ REGISTERS: tuple[Register, ...] = (
     R("ACFG_ABORT", 0x7B, "RO", "failure ACFG_FAIL_SEL.INDEX of the last run: SDO abort "
                                 "code",
       F("CODE", "31:0", "RO", None, "CiA 301 abort code (received or sent by the master)")),
-    R("ACFG_ENTRY", 0x7C, "RW", "table entry written by the next ACFG_VALUE write",
-      F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each ACFG_VALUE "
-                                 "write"),
-      F("NODE", "14:8", "RW", 0, "node-ID of the entry, 0 = end of the list"),
-      F("SIZE", "18:16", "RW", 0, "value size in bytes, 1..4")),
+    R("ACFG_ENTRY", 0x7C, "RW + RO", "table entry written by the next ACFG_VALUE write",
+      F("ENTRY", "7:0", "RW", 0, "entry number 0 .. CFG_DEPTH - 1; +1 after each accepted "
+                                 "ACFG_VALUE write"),
+      F("NODE", "15:8", "RW", 0, "node-ID of the entry 1..127, 0 = end of the list"),
+      F("SIZE", "18:16", "RW", 0, "value size in bytes, 1..4"),
+      F("REFUSED", 30, "RO", 0, "the last ACFG_VALUE write was refused, nothing stored and "
+                                "ENTRY not advanced: NODE > 127, or NODE /= 0 with SIZE not "
+                                "1..4; cleared by the next accepted ACFG_VALUE write")),
     R("ACFG_OBJ", 0x7D, "RW", "object of the table entry written next",
       F("INDEX", "15:0", "RW", 0, "object index"),
       F("SUBINDEX", "23:16", "RW", 0, "sub-index")),
     R("ACFG_VALUE", 0x7E, "WO", "value of the table entry; a write stores the whole entry",
-      F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame")),
+      F("VALUE", "31:0", "WO", None, "value, little-endian bytes as in the SDO frame; the "
+                                     "entry is checked first (ACFG_ENTRY.REFUSED)")),
     R("ACFG_FAIL_SEL", 0x7F, "RW", "which failure of the last run ACFG_FAIL/ACFG_ABORT show",
       F("INDEX", "3:0", "RW", 0, "k-th failing node of the run, 0 = first; the first 16 "
                                  "failures are logged (ACFG_STATUS.NODES_FAIL counts all)")),
@@ -290,7 +307,8 @@ NODE_GROUP = Group(
     registers=(
         R("NODE_CFG", 0x20, "RW", "node supervision configuration of slot k",
           F("NODE_ID", "6:0", "RW", 0, "node-ID, 0 = slot unused"),
-          F("MODE", "9:8", "RW", 0, "00 off, 01 heartbeat consumer, 10 node guarding"),
+          F("MODE", "9:8", "RW", 0, "00 off, 01 heartbeat consumer, 10 node guarding, 11 "
+                                    "reserved: acts as 00 (boot-ups still recorded)"),
           F("AUTOSTART", 10, "RW", 0, "send NMT start after the node's boot-up"),
           F("RESET_ON_LOSS", 11, "RW", 0, "send NMT reset node when the node is lost")),
         R("NODE_TIME", 0x21, "RW", "node supervision times of slot k",
@@ -332,10 +350,16 @@ PDO_REGISTERS: tuple[Register, ...] = (
     R("PDO_SEL", 0xC0, "RW + pulse", "channel shown by the window registers C4h..CBh; "
       "selecting an RPDO takes a snapshot of its receive buffer",
       F("CH", "4:0", "RW", 0, "channel number, 0 .. N_TPDO - 1 (TPDO) or N_RPDO - 1 (RPDO); a "
-                              "channel that does not exist reads 0 and ignores writes"),
+                              "channel that does not exist is refused (REFUSED): the window "
+                              "then shows no channel, reads 0 and ignores writes"),
       F("RPDO", 7, "RW", 0, "0: TPDO (the master transmits), 1: RPDO (the master receives)"),
       F("ACK", 8, "pulse", 0, "with RPDO = 1: clear the channel's NEW flag in the same cycle "
-                              "as the snapshot")),
+                              "as the snapshot"),
+      F("REFUSED", 30, "RO", 0, "the last write of PDO_SEL or PDO_CFG was refused: PDO_SEL "
+                                "named a channel that does not exist, or PDO_CFG had DLC > 8, "
+                                "TT 241..251 (reserved) or no channel selected (nothing "
+                                "changed); cleared by the next accepted PDO_SEL / PDO_CFG "
+                                "write")),
     R("PDO_INFO", 0xC1, "RO", "PDO engine size",
       F("N_TPDO", "5:0", "RO", None, "TPDO channels (generic N_TPDO)"),
       F("N_RPDO", "13:8", "RO", None, "RPDO channels (generic N_RPDO)")),
@@ -347,9 +371,11 @@ PDO_REGISTERS: tuple[Register, ...] = (
       F("RTR", 11, "RW", 0, "TPDO: RTR allowed (remote requests are answered); RPDO: poll, "
                             "send an RTR on COB_ID after every SYNC"),
       F("VALID", 15, "RW", 0, "channel in use"),
-      F("DLC", "19:16", "RW", 0, "TPDO: data length sent; RPDO: data length expected (0..8)"),
+      F("DLC", "19:16", "RW", 0, "TPDO: data length sent; RPDO: data length expected (0..8; "
+                                 "a write with 9..15 is refused, PDO_SEL.REFUSED)"),
       F("TT", "31:24", "RW", 0, "CiA 301 transmission type: 0 acyclic synchronous, 1..240 "
-                                "every TT-th SYNC, 252/253 RTR only (TPDO), 254/255 event")),
+                                "every TT-th SYNC, 252/253 RTR only (TPDO), 254/255 event; "
+                                "241..251 reserved: the write is refused")),
     R("PDO_INHIBIT", 0xC5, "RW", "TPDO inhibit time of the selected channel (CiA 301 "
       "1800h sub 3)",
       F("TIME_100US", "15:0", "RW", 0, "TT 254/255: minimum time between two frames in units "
@@ -507,15 +533,16 @@ OMNI_REGISTERS: tuple[Register, ...] = (
       F("MISSING", "7:0", "W1C", None, "bit k: valid slot k did not answer in time"),
       F("NODE", "15:8", "RO", None, "node-ID of the lowest missing slot, 0 = none")),
     R("OMNI_PMB_INFO", 0xD9, "RO + W1C", "parameter mailbox: last fc 111 frame to MASTER_ID",
-      F("SENDER", "7:0", "RO", None, "byte 0"),
-      F("TYPE", "15:8", "RO", None, "byte 1"),
-      F("DLC", "19:16", "RO", None, "data length"),
-      F("OVERRUN", 30, "W1C", None, "sticky: a frame replaced one not acknowledged"),
-      F("NEW", 31, "W1C", None, "a frame was stored; write 1 clears")),
+      F("SENDER", "7:0", "RO", 0, "byte 0 (0 until the first frame)"),
+      F("TYPE", "15:8", "RO", 0, "byte 1"),
+      F("DLC", "19:16", "RO", 0, "data length"),
+      F("OVERRUN", 30, "W1C", 0, "sticky: a frame replaced one not acknowledged"),
+      F("NEW", 31, "W1C", 0, "a frame was stored; write 1 clears")),
     R("OMNI_PMB_LO", 0xDA, "RO", "parameter mailbox: bytes 2..5",
-      F("DATA", "31:0", "RO", None, "byte 2 in 7:0 .. byte 5 in 31:24")),
+      F("DATA", "31:0", "RO", 0, "byte 2 in 7:0 .. byte 5 in 31:24 (0 until the first "
+                                 "frame)")),
     R("OMNI_PMB_HI", 0xDB, "RO", "parameter mailbox: bytes 6..7",
-      F("DATA", "15:0", "RO", None, "byte 6 in 7:0, byte 7 in 15:8")),
+      F("DATA", "15:0", "RO", 0, "byte 6 in 7:0, byte 7 in 15:8 (0 until the first frame)")),
     R("OMNI_BUS_BITS", 0xDC, "RO", "feasibility check: worst-case bits of one cycle",
       F("BITS", "15:0", "RO", None, "cycle frame(s) + one feedback per valid slot, worst-case "
                                     "stuffing, with intermission")),
@@ -925,6 +952,20 @@ def gen_markdown() -> str:
         "Reset",
         "*input*: the field shows an input of the block. Addresses not listed read 0 and ignore "
         "writes.",
+        "",
+        "**REFUSED bits** (`NMT_CMD`, `SYNC_OVERFLOW`, `SDO_CMD` per channel, `ACFG_STATUS` for",
+        "`ACFG_CTRL.START`, `ACFG_ENTRY` for `ACFG_VALUE`, `PDO_SEL` for `PDO_SEL`/`PDO_CFG`):",
+        "REFUSED describes the **last write**",
+        "to that register only. A refused write sets it and changes nothing else: no frame is "
+        "sent, no",
+        "field is stored, and the BUSY/DONE bits of a transfer already running keep their "
+        "meaning; the",
+        "next accepted write clears it. It is valid from the first read after the write (also a "
+        "read in",
+        "the very next bus cycle). A driver checks REFUSED in its first read right after its own",
+        "command write, and never while it polls BUSY/DONE afterwards: a later write by someone "
+        "else",
+        "(refused or not) may have changed it meanwhile. Every REFUSED bit reads 0 after reset.",
         "",
         "## Summary",
         "",

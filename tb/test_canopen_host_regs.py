@@ -160,7 +160,8 @@ class TB:
         start_clock(dut.clk_i, CLK_HZ)
         dut.rst_n_i.value = 0
         for name in ("avs_read_i", "avs_write_i", "avs_writedata_i", "avs_byteenable_i",
-                     "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", *STATUS_INPUTS,
+                     "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", "sdo_start_i",
+                     *STATUS_INPUTS,
                      *SLOT_INPUTS,
                      *EVENTS.values(), *COUNT_INPUTS.values()):
             getattr(dut, name).value = 0
@@ -179,6 +180,8 @@ class TB:
         #: SDO client model: scripted answers and the requests it saw
         self.sdo_script: list[tuple] = []
         self.sdo_seen: list[dict] = []
+        #: the client model refuses every request (sdo_refused_i, no sdo_start_i) while set
+        self.sdo_refuse = False
         cocotb.start_soon(self._cycle_monitor())
         cocotb.start_soon(self._ram_model())
         cocotb.start_soon(self._pdo_model())
@@ -259,15 +262,24 @@ class TB:
             req = {"node": int(dut.sdo_node_o.value), "upload": int(dut.sdo_upload_o.value),
                    "size": int(dut.sdo_size_o.value), "index": int(dut.sdo_index_o.value),
                    "sub": int(dut.sdo_subindex_o.value)}
+            if self.sdo_refuse:
+                # as canopen_sdo_channels: the decision shows in the cycle of the request
+                dut.sdo_refused_i.value = 1
+                continue
+            dut.sdo_refused_i.value = 0
+            # accepted on the selected channel: sdo_start_i in the cycle of the request
+            dut.sdo_start_i.value = 1 << int(dut.sdo_chan_o.value)
             if not req["upload"]:
                 raw = b"".join(self.ram.get(w, 0).to_bytes(4, "little") for w in range(64))
                 req["data"] = raw[:req["size"]]
             self.sdo_seen.append(req)
             outcome = self.sdo_script.pop(0) if self.sdo_script else ("ok", None)
+            await RisingEdge(dut.clk_i)
+            dut.sdo_start_i.value = 0
             dut.sdo_busy_i.value = 1
             dut.sdo_error_i.value = 0
             dut.sdo_abort_sent_i.value = 0
-            for _ in range(25):
+            for _ in range(24):
                 await RisingEdge(dut.clk_i)
             if outcome[0] == "ok":
                 data = outcome[1] or b""
@@ -323,6 +335,8 @@ class TB:
         apart)."""
         keep = rw_mask(name) | (~defined_mask(name) & 0xFFFFFFFF if garbage else 0)
         value = random.getrandbits(32) & keep
+        if name == "SYNC_OVERFLOW":  # 1 and 241..255 are refused (tested apart)
+            value = (value & ~0xFF) | random.choice([0, *range(2, 241)])
         if name == "SDO_SEL":
             f = field_info("SDO_SEL", "CHAN")
             value = (value & ~(((1 << width(f)) - 1) << f.lo)) | (random.randrange(self.n_sdo)
@@ -336,6 +350,8 @@ class TB:
             if any(f.access == "RW" for f in info.fields.values()):
                 slots = range(self.max_nodes) if info.stride else [None]
                 out += [(name, s) for s in slots]
+        # SYNC_OVERFLOW first: it refuses a change while CTRL.SYNC_EN = 1 and the period /= 0
+        out.sort(key=lambda r: r[0] != "SYNC_OVERFLOW")
         return out
 
     def mapped_addresses(self) -> set[int]:
@@ -396,7 +412,10 @@ async def run_rw_reset_values_and_readback(dut):
         for fname, f in R.REGISTERS[name].fields.items():
             if f.access == "RW" and (name, fname) in RW_OUTPUTS:
                 out = tb.output_of(name, fname, slot)
-                assert out == R.get_field(name, fname, value), f"{name}.{fname}({slot}) output"
+                want = R.get_field(name, fname, value)
+                if (name, fname) == ("ACFG_ENTRY", "NODE"):
+                    want &= 0x7F  # 8-bit field (> 127 refused at ACFG_VALUE), 7-bit port
+                assert out == want, f"{name}.{fname}({slot}) output"
     # byte enables: only byte 1 of SYNC_PERIOD_US and byte 2 of SDO_COB change
     await host.write("SYNC_PERIOD_US", 0x11223344)
     await host.write("SYNC_PERIOD_US", 0xAABBCCDD, byteenable=0b0010)
@@ -749,6 +768,73 @@ async def run_sdo_channel_select(dut):
         await host.write("ACFG_FAIL_SEL", k)
         assert seen[-1] == k and int(dut.acfg_fail_sel_o.value) == k
     task.cancel()
+
+
+@cocotb.test(timeout_time=2, timeout_unit="ms")
+async def run_refused_writes_change_nothing(dut):
+    """Purpose: the REFUSED rule of the register map at the register block.
+
+    Verifies: an SDO_CMD write the channels refuse (sdo_refused_i, no sdo_start_i) leaves the
+    channel's DONE set by the previous transfer (a refused write changes nothing), and the
+    first read after the write shows REFUSED; the next accepted write clears DONE in that same
+    first read. SYNC_OVERFLOW: 1, 241 and 255 are refused (value and sync_overflow_o kept,
+    REFUSED = 1), 0 and 2..240 accepted (REFUSED = 0); while CTRL.SYNC_EN = 1 and
+    SYNC_PERIOD_US /= 0 a different value is refused and the same value accepted; after
+    SYNC_EN = 0 the change is accepted. ACFG_VALUE with ACFG_ENTRY.NODE 128/255 or SIZE 0/5/7
+    (NODE /= 0) stores nothing (no acfg_tbl_we_o, ENTRY not advanced, ACFG_ENTRY.REFUSED);
+    NODE 1..127 with SIZE 1..4 and the end marker (NODE 0, any SIZE) are stored.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    host = tb.host
+    await tb.strobe("ev_sdo_done_i", 1)
+    assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
+    tb.sdo_refuse = True
+    await host.write("SDO_CMD", R.make("SDO_CMD", NODE=5, UPLOAD=1))
+    word = await host.read("SDO_CMD")
+    assert word & R.SDO_CMD_REFUSED, f"REFUSED not in the first read: {word:#010x}"
+    assert word & R.SDO_CMD_DONE, f"a refused SDO_CMD write cleared DONE: {word:#010x}"
+    await tb.settle()
+    assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
+    tb.sdo_refuse = False
+    await host.write("SDO_CMD", R.make("SDO_CMD", NODE=5, UPLOAD=1))
+    word = await host.read("SDO_CMD")
+    assert not word & (R.SDO_CMD_DONE | R.SDO_CMD_REFUSED), f"accepted: {word:#010x}"
+
+    async def ovf(value: int, accepted: bool, expect: int) -> None:
+        await host.write("SYNC_OVERFLOW", value)
+        word = await host.read("SYNC_OVERFLOW")
+        assert bool(word & R.SYNC_OVERFLOW_REFUSED) == (not accepted), (value, hex(word))
+        assert R.get_field("SYNC_OVERFLOW", "VALUE", word) == expect, (value, hex(word))
+        assert int(dut.sync_overflow_o.value) == expect
+
+    await ovf(16, True, 16)
+    for bad in (1, 241, 255):
+        await ovf(bad, False, 16)
+    await ovf(0, True, 0)
+    await ovf(2, True, 2)
+    await ovf(240, True, 240)
+    await host.write("SYNC_PERIOD_US", 1000)
+    await host.write("CTRL", R.CTRL_SYNC_EN)
+    await ovf(8, False, 240)     # CiA 301 1019h: no change while the producer runs
+    await ovf(240, True, 240)    # the value it has: accepted
+    await host.write("SYNC_PERIOD_US", 0)
+    await ovf(8, True, 8)        # SYNC_EN = 1 but period 0: the producer is off
+    await host.write("SYNC_PERIOD_US", 1000)
+    await host.write("CTRL", 0)
+    await ovf(4, True, 4)
+    # ACFG_VALUE: an entry with NODE > 127 or SIZE not 1..4 is not stored, ENTRY stays
+    for node, size, ok in ((3, 0, False), (3, 5, False), (3, 7, False), (128, 2, False),
+                           (255, 4, False), (3, 1, True), (127, 4, True), (0, 0, True),
+                           (0, 7, True)):
+        await host.write("ACFG_ENTRY", R.make("ACFG_ENTRY", ENTRY=10, NODE=node, SIZE=size))
+        c0 = tb.cycle
+        await host.write("ACFG_VALUE", 0x1234)
+        word = await host.read("ACFG_ENTRY")
+        await tb.settle()
+        assert bool(word & R.ACFG_ENTRY_REFUSED) == (not ok), (node, size, hex(word))
+        assert R.get_field("ACFG_ENTRY", "ENTRY", word) == (11 if ok else 10), (node, size)
+        assert len(tb.pulses_of("acfg_tbl_we_o", c0)) == int(ok), (node, size)
 
 
 @cocotb.test(timeout_time=5, timeout_unit="ms")

@@ -1041,6 +1041,58 @@ async def run_host_window_registers(dut):
                                       if n.startswith("PDO_CNT_")}
 
 
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_host_input_refused(dut):
+    """Purpose: out-of-range host values in the PDO window are refused with a defined reaction.
+
+    Verifies: PDO_SEL naming a channel that does not exist (TPDO N_TPDO and 31, RPDO 31), right
+    after a valid TPDO was selected, neither stops the simulation (bound check) nor touches a
+    channel: PDO_SEL.REFUSED = 1, the window reads 0 and ignores PDO_CFG / PDO_DATA / PDO_CMD
+    (nothing sent); PDO_CFG with DLC 9..15 or TT 241..251 (TPDO and RPDO) is refused
+    (REFUSED = 1, the channel's configuration unchanged) and a triggered TPDO still goes out
+    with its old DLC; the next accepted PDO_SEL / PDO_CFG write clears REFUSED; the driver's
+    tpdo_config of a channel that does not exist leaves PDO_SEL.REFUSED set.
+    """
+    tb = TB(dut)
+    await tb.start(slave_tpdos=False)
+    host = tb.host
+    await host.tpdo_config(0, 0x201, 2, 255)
+    await host.tpdo_write(0, b"\x11\x22", commit=True)
+    good = await host.read("PDO_CFG")
+    for rpdo, ch in ((0, tb.n_tpdo), (0, 31), (1, 31), (1, tb.n_rpdo)):
+        await host.write("PDO_SEL", R.make("PDO_SEL", CH=0))             # a valid TPDO first
+        await host.write("PDO_SEL", R.make("PDO_SEL", RPDO=rpdo, CH=ch))
+        sel = await host.read("PDO_SEL")
+        assert sel & R.PDO_SEL_REFUSED, f"PDO_SEL RPDO={rpdo} CH={ch} not refused: {sel:#x}"
+        await host.write("PDO_CFG", 0xFFFFFFFF)
+        await host.write("PDO_DATA_LO", 0xDEADBEEF)
+        await host.write("PDO_CMD", R.PDO_CMD_COMMIT | R.PDO_CMD_TRIGGER)
+        for name in ("PDO_CFG", "PDO_DATA_LO", "PDO_DATA_HI", "PDO_CMD", "PDO_SEQ"):
+            assert await host.read(name) == 0, f"{name} with no channel selected"
+    await host.write("PDO_SEL", R.make("PDO_SEL", CH=0))
+    assert not await host.read("PDO_SEL") & R.PDO_SEL_REFUSED
+    assert await host.read("PDO_CFG") == good
+    bad_cfgs = [R.make("PDO_CFG", COB_ID=0x202, VALID=1, DLC=dlc, TT=255) for dlc in (9, 15)]
+    bad_cfgs += [R.make("PDO_CFG", COB_ID=0x202, VALID=1, DLC=2, TT=tt) for tt in (241, 251)]
+    for rpdo in (0, 1):
+        await host.write("PDO_SEL", R.make("PDO_SEL", RPDO=rpdo, CH=0))
+        before = await host.read("PDO_CFG")
+        for cfg in bad_cfgs:
+            await host.write("PDO_CFG", cfg)
+            assert await host.read("PDO_SEL") & R.PDO_SEL_REFUSED, f"{cfg:#x} not refused"
+            assert await host.read("PDO_CFG") == before, f"{cfg:#x} changed the channel"
+    await host.tpdo_trigger(0)
+    await tb.wait_for(lambda: len(tb.sent(0x201)) == 1, 500, step_us=1)
+    await Timer(200, "us")
+    assert [bytes(r.msg.data) for r in tb.sent(0x201)] == [b"\x11\x22"]
+    assert tb.sent(0x202) == []
+    await host.write("PDO_SEL", R.make("PDO_SEL", CH=0))
+    await host.write("PDO_CFG", good)
+    assert not await host.read("PDO_SEL") & R.PDO_SEL_REFUSED
+    await host.tpdo_config(tb.n_tpdo, 0x203, 2, 255)
+    assert await host.pdo_refused()
+
+
 @cocotb.test(timeout_time=50, timeout_unit="ms", expect_fail=True)
 async def run_od_checker_can_fail(dut):
     """Purpose: prove the slave OD / frame checker fails on a wrong expectation.

@@ -75,7 +75,7 @@ async def run_guide_example(dut):
     assert [bytes(r.msg.data) for r in tb.frames(0x603)[n0:]] == [bytes.fromhex("2B1710000A000000")]
     # step 4: segmented upload of 1008h:00 (device name) from node 3
     await host.write(0x70, 0x00001008)
-    await host.write(0x71, 0x00000083)   # SDO_CMD: node 3, upload
+    await host.write(0x71, 0x00100003)   # SDO_CMD: node 3, upload
     word = await poll(tb, 0x71, 1 << 1, "SDO_CMD.DONE")
     size = (word >> 8) & 0x7FF
     name = tb.slave(3).read_raw(0x1008, 0)
@@ -86,7 +86,7 @@ async def run_guide_example(dut):
     assert raw == name[:len(raw)]
     # step 5: an object that does not exist -> abort code in SDO_ABORT
     await host.write(0x70, 0x00002FFF)
-    await host.write(0x71, 0x00000083)
+    await host.write(0x71, 0x00100003)
     word = await poll(tb, 0x71, 1 << 1, "SDO_CMD.DONE")
     assert word & 0x800000FF == 0x06, hex(word)  # DONE + ERROR, ABORT_SENT = 0
     assert await host.read(0x72) == 0x06020000
@@ -117,9 +117,9 @@ async def run_guide_example(dut):
     # step 7: two uploads at once, node 2 on channel 1 and node 3 on channel 0
     await host.write(0x75, 0x00000001)   # SDO_SEL: channel 1
     await host.write(0x70, 0x00001008)   # SDO_OBJ: device name
-    await host.write(0x71, 0x00000082)   # SDO_CMD: node 2, upload (channel 1)
+    await host.write(0x71, 0x00100002)   # SDO_CMD: node 2, upload (channel 1)
     await host.write(0x75, 0x00000000)   # SDO_SEL: channel 0
-    await host.write(0x71, 0x00000083)   # SDO_CMD: node 3, upload (channel 0)
+    await host.write(0x71, 0x00100003)   # SDO_CMD: node 3, upload (channel 0)
     for _ in range(5_000):
         word = await host.read(0x75)
         if (word >> 8) & 0x3 == 0x3:

@@ -107,7 +107,7 @@
 #define CM_REG_ACFG_FAIL_BYTE                 0x1E8u
 #define CM_REG_ACFG_ABORT                     0x7Bu        /* RO: failure ACFG_FAIL_SEL.INDEX of the last run: SDO abort code */
 #define CM_REG_ACFG_ABORT_BYTE                0x1ECu
-#define CM_REG_ACFG_ENTRY                     0x7Cu        /* RW: table entry written by the next ACFG_VALUE write */
+#define CM_REG_ACFG_ENTRY                     0x7Cu        /* RW + RO: table entry written by the next ACFG_VALUE write */
 #define CM_REG_ACFG_ENTRY_BYTE                0x1F0u
 #define CM_REG_ACFG_OBJ                       0x7Du        /* RW: object of the table entry written next */
 #define CM_REG_ACFG_OBJ_BYTE                  0x1F4u
@@ -337,8 +337,8 @@
 /* NMT_CMD */
 #define CM_NMT_CMD_CS_SHIFT                   0u           /* bits 7:0, WO */
 #define CM_NMT_CMD_CS_MASK                    0x000000FFu
-#define CM_NMT_CMD_NODE_SHIFT                 8u           /* bits 14:8, WO */
-#define CM_NMT_CMD_NODE_MASK                  0x00007F00u
+#define CM_NMT_CMD_NODE_SHIFT                 8u           /* bits 15:8, WO */
+#define CM_NMT_CMD_NODE_MASK                  0x0000FF00u
 #define CM_NMT_CMD_REFUSED_SHIFT              30u          /* bit 30, RO */
 #define CM_NMT_CMD_REFUSED_MASK               0x40000000u
 #define CM_NMT_CMD_NMT_BUSY_SHIFT             31u          /* bit 31, RO */
@@ -349,6 +349,8 @@
 /* SYNC_OVERFLOW */
 #define CM_SYNC_OVERFLOW_VALUE_SHIFT          0u           /* bits 7:0, RW */
 #define CM_SYNC_OVERFLOW_VALUE_MASK           0x000000FFu
+#define CM_SYNC_OVERFLOW_REFUSED_SHIFT        30u          /* bit 30, RO */
+#define CM_SYNC_OVERFLOW_REFUSED_MASK         0x40000000u
 /* SYNC_WINDOW_US */
 #define CM_SYNC_WINDOW_US_VALUE_SHIFT         0u           /* bits 31:0, RW */
 #define CM_SYNC_WINDOW_US_VALUE_MASK          0xFFFFFFFFu
@@ -424,12 +426,12 @@
 #define CM_SDO_OBJ_SUBINDEX_SHIFT             16u          /* bits 23:16, RW */
 #define CM_SDO_OBJ_SUBINDEX_MASK              0x00FF0000u
 /* SDO_CMD */
-#define CM_SDO_CMD_NODE_SHIFT                 0u           /* bits 6:0, WO */
-#define CM_SDO_CMD_NODE_MASK                  0x0000007Fu
-#define CM_SDO_CMD_UPLOAD_SHIFT               7u           /* bit 7, WO */
-#define CM_SDO_CMD_UPLOAD_MASK                0x00000080u
+#define CM_SDO_CMD_NODE_SHIFT                 0u           /* bits 7:0, WO */
+#define CM_SDO_CMD_NODE_MASK                  0x000000FFu
 #define CM_SDO_CMD_SIZE_SHIFT                 8u           /* bits 18:8, WO */
 #define CM_SDO_CMD_SIZE_MASK                  0x0007FF00u
+#define CM_SDO_CMD_UPLOAD_SHIFT               20u          /* bit 20, WO */
+#define CM_SDO_CMD_UPLOAD_MASK                0x00100000u
 #define CM_SDO_CMD_BUSY_SHIFT                 0u           /* bit 0, RO */
 #define CM_SDO_CMD_BUSY_MASK                  0x00000001u
 #define CM_SDO_CMD_DONE_SHIFT                 1u           /* bit 1, RO */
@@ -489,10 +491,12 @@
 /* ACFG_ENTRY */
 #define CM_ACFG_ENTRY_ENTRY_SHIFT             0u           /* bits 7:0, RW */
 #define CM_ACFG_ENTRY_ENTRY_MASK              0x000000FFu
-#define CM_ACFG_ENTRY_NODE_SHIFT              8u           /* bits 14:8, RW */
-#define CM_ACFG_ENTRY_NODE_MASK               0x00007F00u
+#define CM_ACFG_ENTRY_NODE_SHIFT              8u           /* bits 15:8, RW */
+#define CM_ACFG_ENTRY_NODE_MASK               0x0000FF00u
 #define CM_ACFG_ENTRY_SIZE_SHIFT              16u          /* bits 18:16, RW */
 #define CM_ACFG_ENTRY_SIZE_MASK               0x00070000u
+#define CM_ACFG_ENTRY_REFUSED_SHIFT           30u          /* bit 30, RO */
+#define CM_ACFG_ENTRY_REFUSED_MASK            0x40000000u
 /* ACFG_OBJ */
 #define CM_ACFG_OBJ_INDEX_SHIFT               0u           /* bits 15:0, RW */
 #define CM_ACFG_OBJ_INDEX_MASK                0x0000FFFFu
@@ -539,6 +543,8 @@
 #define CM_PDO_SEL_RPDO_MASK                  0x00000080u
 #define CM_PDO_SEL_ACK_SHIFT                  8u           /* bit 8, pulse */
 #define CM_PDO_SEL_ACK_MASK                   0x00000100u
+#define CM_PDO_SEL_REFUSED_SHIFT              30u          /* bit 30, RO */
+#define CM_PDO_SEL_REFUSED_MASK               0x40000000u
 /* PDO_INFO */
 #define CM_PDO_INFO_N_TPDO_SHIFT              0u           /* bits 5:0, RO */
 #define CM_PDO_INFO_N_TPDO_MASK               0x0000003Fu
@@ -808,7 +814,7 @@
 
 /* reset words */
 #define CM_ID_RESET                           0x434F3031u
-#define CM_VERSION_RESET                      0x00010002u
+#define CM_VERSION_RESET                      0x00020000u
 #define CM_CTRL_RESET                         0x00000000u
 #define CM_IRQ_STATUS_RESET                   0x00000000u
 #define CM_IRQ_ENABLE_RESET                   0x00000000u
@@ -826,6 +832,10 @@
 #define CM_CNT_GUARD_ERR_RESET                0x00000000u
 #define CM_CNT_CAN_ERROR_RESET                0x00000000u
 #define CM_CNT_EMCY_RESET                     0x00000000u
+#define CM_EMCY_NODE_RESET                    0x00000000u
+#define CM_EMCY_DATA_LO_RESET                 0x00000000u
+#define CM_EMCY_DATA_HI_RESET                 0x00000000u
+#define CM_EMCY_TIME_MS_RESET                 0x00000000u
 #define CM_EMCY_POP_RESET                     0x00000000u
 #define CM_SDO_OBJ_RESET                      0x00000000u
 #define CM_SDO_TIMEOUT_MS_RESET               0x000003E8u
@@ -856,5 +866,8 @@
 #define CM_OMNI_PARAM_LO_RESET                0x00000000u
 #define CM_OMNI_PARAM_HI_RESET                0x00000000u
 #define CM_OMNI_SLOT_CFG_RESET                0x00000000u
+#define CM_OMNI_PMB_INFO_RESET                0x00000000u
+#define CM_OMNI_PMB_LO_RESET                  0x00000000u
+#define CM_OMNI_PMB_HI_RESET                  0x00000000u
 
 #endif /* CANOPEN_MASTER_REGS_H */

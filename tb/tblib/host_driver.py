@@ -54,8 +54,20 @@ class SdoTimeout(TimeoutError):
     """SDO_CMD.DONE did not come within the driver's poll budget."""
 
 
-class SdoRefused(Exception):
+class Refused(Exception):
+    """The core refused a write (the register's REFUSED bit): nothing was sent or changed.
+
+    REFUSED describes the last write to its register only (docs/register_map.md): the driver
+    reads it once, right after its own write, and never while it polls BUSY/DONE.
+    """
+
+
+class SdoRefused(Refused):
     """The master refused an SDO_CMD write (SDO_CMD.REFUSED): nothing was sent."""
+
+
+class NmtRefused(Refused):
+    """The master refused an NMT_CMD write (NMT_CMD.REFUSED): nothing was sent."""
 
 
 class AvalonSuffixMaster(AvalonMaster):
@@ -184,6 +196,9 @@ class CanopenMasterHost:
         else:
             raise TimeoutError(f"NMT_CMD.NMT_BUSY still set after {self.max_polls} polls")
         await self.write("NMT_CMD", R.make("NMT_CMD", CS=cs, NODE=node))
+        word = await self.read("NMT_CMD")
+        if word & R.NMT_CMD_REFUSED:
+            raise NmtRefused(f"NMT_CMD cs={cs:#04x} node={node} refused (NMT_CMD = {word:#010x})")
 
     async def nmt_busy(self) -> bool:
         return bool(await self.read("NMT_CMD") & R.NMT_CMD_NMT_BUSY)
@@ -195,6 +210,9 @@ class CanopenMasterHost:
             raise ValueError(f"SYNC overflow {overflow}: 0 or 2..240 (CiA 301 1019h)")
         await self.write("SYNC_PERIOD_US", R.make("SYNC_PERIOD_US", VALUE=period_us))
         await self.write("SYNC_OVERFLOW", R.make("SYNC_OVERFLOW", VALUE=overflow))
+        if await self.read("SYNC_OVERFLOW") & R.SYNC_OVERFLOW_REFUSED:
+            raise Refused(f"SYNC_OVERFLOW = {overflow} refused: 1019h changes only while the "
+                          "SYNC producer is stopped")
         await self.write("SYNC_WINDOW_US", R.make("SYNC_WINDOW_US", VALUE=window_us))
         await self.write("CTRL", R.make("CTRL", SYNC_EN=int(enable)))
 
@@ -296,6 +314,10 @@ class CanopenMasterHost:
             await self.write("SDO_OBJ", R.make("SDO_OBJ", INDEX=index, SUBINDEX=sub))
             await self.write("SDO_CMD", R.make("SDO_CMD", NODE=node, UPLOAD=int(upload),
                                                SIZE=size))
+            # REFUSED describes this write: read it once now, never while polling DONE
+            word = await self.read("SDO_CMD")
+        if word & R.SDO_CMD_REFUSED:
+            raise SdoRefused(f"SDO_CMD on channel {chan} refused (SDO_CMD = {word:#010x})")
 
     async def sdo_command(self, chan: int = 0) -> int:
         """SDO_CMD of channel ``chan``."""
@@ -304,8 +326,9 @@ class CanopenMasterHost:
             return await self.read("SDO_CMD")
 
     async def _sdo_wait(self, chan: int = 0) -> int:
-        """Poll SDO_CMD of ``chan`` until DONE; raise :class:`SdoAbort` on ERROR and
-        :class:`SdoRefused` on REFUSED; return the size."""
+        """Poll SDO_CMD of ``chan`` until DONE; raise :class:`SdoAbort` on ERROR; return the
+        size. REFUSED is not looked at here: it describes the channel's last SDO_CMD write,
+        which may be someone else's (``_sdo_start`` checked this transfer's own write)."""
         for _ in range(self.max_polls):
             async with self._sdo_lock:
                 await self._sdo_select(chan)
@@ -315,8 +338,6 @@ class CanopenMasterHost:
                 if word & R.SDO_CMD_ERROR:
                     raise SdoAbort(code, bool(word & R.SDO_CMD_ABORT_SENT))
                 return R.get_field("SDO_CMD", "XFER_SIZE", word)
-            if word & R.SDO_CMD_REFUSED:
-                raise SdoRefused(f"SDO_CMD on channel {chan} refused (SDO_CMD = {word:#010x})")
             await ClockCycles(self.clock, self.poll_cycles)
         raise SdoTimeout(f"SDO_CMD.DONE not seen within {self.max_polls} polls")
 
@@ -368,6 +389,12 @@ class CanopenMasterHost:
     # method below selects its channel first and holds a lock over the whole sequence.
     async def _pdo_sel(self, rpdo: bool, ch: int, ack: bool = False) -> None:
         await self.write("PDO_SEL", R.make("PDO_SEL", CH=ch, RPDO=int(rpdo), ACK=int(ack)))
+
+    async def pdo_refused(self) -> bool:
+        """PDO_SEL.REFUSED: the last PDO_SEL / PDO_CFG write was refused (a channel that does
+        not exist, DLC > 8 or a reserved TT; the driver's own methods range-check DLC and TT
+        before writing). Read it right after the write in question."""
+        return bool(await self.read("PDO_SEL") & R.PDO_SEL_REFUSED)
 
     async def pdo_info(self) -> tuple[int, int]:
         """(N_TPDO, N_RPDO) of the PDO engine."""

@@ -186,7 +186,7 @@ IRQ_ENABLE_CONFIG = 0x80  # bit 7, RW
 NMT_CMD_CS_SHIFT = 0
 NMT_CMD_CS_MASK = 0xFF  # bits 7:0, WO
 NMT_CMD_NODE_SHIFT = 8
-NMT_CMD_NODE_MASK = 0x7F00  # bits 14:8, WO
+NMT_CMD_NODE_MASK = 0xFF00  # bits 15:8, WO
 NMT_CMD_REFUSED = 0x40000000  # bit 30, RO
 NMT_CMD_NMT_BUSY = 0x80000000  # bit 31, RO
 # SYNC_PERIOD_US
@@ -195,6 +195,7 @@ SYNC_PERIOD_US_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RW
 # SYNC_OVERFLOW
 SYNC_OVERFLOW_VALUE_SHIFT = 0
 SYNC_OVERFLOW_VALUE_MASK = 0xFF  # bits 7:0, RW
+SYNC_OVERFLOW_REFUSED = 0x40000000  # bit 30, RO
 # SYNC_WINDOW_US
 SYNC_WINDOW_US_VALUE_SHIFT = 0
 SYNC_WINDOW_US_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RW
@@ -270,10 +271,10 @@ SDO_OBJ_SUBINDEX_SHIFT = 16
 SDO_OBJ_SUBINDEX_MASK = 0xFF0000  # bits 23:16, RW
 # SDO_CMD
 SDO_CMD_NODE_SHIFT = 0
-SDO_CMD_NODE_MASK = 0x7F  # bits 6:0, WO
-SDO_CMD_UPLOAD = 0x80  # bit 7, WO
+SDO_CMD_NODE_MASK = 0xFF  # bits 7:0, WO
 SDO_CMD_SIZE_SHIFT = 8
 SDO_CMD_SIZE_MASK = 0x7FF00  # bits 18:8, WO
+SDO_CMD_UPLOAD = 0x100000  # bit 20, WO
 SDO_CMD_BUSY = 0x1  # bit 0, RO
 SDO_CMD_DONE = 0x2  # bit 1, RO
 SDO_CMD_ERROR = 0x4  # bit 2, RO
@@ -324,9 +325,10 @@ ACFG_ABORT_CODE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 ACFG_ENTRY_ENTRY_SHIFT = 0
 ACFG_ENTRY_ENTRY_MASK = 0xFF  # bits 7:0, RW
 ACFG_ENTRY_NODE_SHIFT = 8
-ACFG_ENTRY_NODE_MASK = 0x7F00  # bits 14:8, RW
+ACFG_ENTRY_NODE_MASK = 0xFF00  # bits 15:8, RW
 ACFG_ENTRY_SIZE_SHIFT = 16
 ACFG_ENTRY_SIZE_MASK = 0x70000  # bits 18:16, RW
+ACFG_ENTRY_REFUSED = 0x40000000  # bit 30, RO
 # ACFG_OBJ
 ACFG_OBJ_INDEX_SHIFT = 0
 ACFG_OBJ_INDEX_MASK = 0xFFFF  # bits 15:0, RW
@@ -365,6 +367,7 @@ PDO_SEL_CH_SHIFT = 0
 PDO_SEL_CH_MASK = 0x1F  # bits 4:0, RW
 PDO_SEL_RPDO = 0x80  # bit 7, RW
 PDO_SEL_ACK = 0x100  # bit 8, pulse
+PDO_SEL_REFUSED = 0x40000000  # bit 30, RO
 # PDO_INFO
 PDO_INFO_N_TPDO_SHIFT = 0
 PDO_INFO_N_TPDO_MASK = 0x3F  # bits 5:0, RO
@@ -603,7 +606,7 @@ OMNI_CNT_PARAM_RX_VALUE_MASK = 0xFFFFFFFF  # bits 31:0, RO
 
 # reset words
 ID_RESET = 0x434F3031
-VERSION_RESET = 0x00010002
+VERSION_RESET = 0x00020000
 CTRL_RESET = 0x00000000
 IRQ_STATUS_RESET = 0x00000000
 IRQ_ENABLE_RESET = 0x00000000
@@ -621,6 +624,10 @@ CNT_HB_LOSS_RESET = 0x00000000
 CNT_GUARD_ERR_RESET = 0x00000000
 CNT_CAN_ERROR_RESET = 0x00000000
 CNT_EMCY_RESET = 0x00000000
+EMCY_NODE_RESET = 0x00000000
+EMCY_DATA_LO_RESET = 0x00000000
+EMCY_DATA_HI_RESET = 0x00000000
+EMCY_TIME_MS_RESET = 0x00000000
 EMCY_POP_RESET = 0x00000000
 SDO_OBJ_RESET = 0x00000000
 SDO_TIMEOUT_MS_RESET = 0x000003E8
@@ -651,6 +658,9 @@ OMNI_PARAM_HDR_RESET = 0x00000000
 OMNI_PARAM_LO_RESET = 0x00000000
 OMNI_PARAM_HI_RESET = 0x00000000
 OMNI_SLOT_CFG_RESET = 0x00000000
+OMNI_PMB_INFO_RESET = 0x00000000
+OMNI_PMB_LO_RESET = 0x00000000
+OMNI_PMB_HI_RESET = 0x00000000
 
 
 class FieldInfo(NamedTuple):
@@ -676,10 +686,10 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "VERSION": RegInfo(
-        addr=0x01, access="RO", reset=0x10002, stride=0,
+        addr=0x01, access="RO", reset=0x20000, stride=0,
         fields={
-            "MINOR": FieldInfo(15, 0, "RO", 0x2),
-            "MAJOR": FieldInfo(31, 16, "RO", 0x1),
+            "MINOR": FieldInfo(15, 0, "RO", 0x0),
+            "MAJOR": FieldInfo(31, 16, "RO", 0x2),
         },
     ),
     "CTRL": RegInfo(
@@ -733,8 +743,8 @@ REGISTERS: dict[str, RegInfo] = {
         addr=0x06, access="WO + RO", reset=None, stride=0,
         fields={
             "CS": FieldInfo(7, 0, "WO", None),
-            "NODE": FieldInfo(14, 8, "WO", None),
-            "REFUSED": FieldInfo(30, 30, "RO", None),
+            "NODE": FieldInfo(15, 8, "WO", None),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
             "NMT_BUSY": FieldInfo(31, 31, "RO", None),
         },
     ),
@@ -748,6 +758,7 @@ REGISTERS: dict[str, RegInfo] = {
         addr=0x08, access="RW", reset=0x0, stride=0,
         fields={
             "VALUE": FieldInfo(7, 0, "RW", 0x0),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
         },
     ),
     "SYNC_WINDOW_US": RegInfo(
@@ -850,27 +861,27 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "EMCY_NODE": RegInfo(
-        addr=0x61, access="RO", reset=None, stride=0,
+        addr=0x61, access="RO", reset=0x0, stride=0,
         fields={
-            "NODE": FieldInfo(6, 0, "RO", None),
+            "NODE": FieldInfo(6, 0, "RO", 0x0),
         },
     ),
     "EMCY_DATA_LO": RegInfo(
-        addr=0x62, access="RO", reset=None, stride=0,
+        addr=0x62, access="RO", reset=0x0, stride=0,
         fields={
-            "DATA": FieldInfo(31, 0, "RO", None),
+            "DATA": FieldInfo(31, 0, "RO", 0x0),
         },
     ),
     "EMCY_DATA_HI": RegInfo(
-        addr=0x63, access="RO", reset=None, stride=0,
+        addr=0x63, access="RO", reset=0x0, stride=0,
         fields={
-            "DATA": FieldInfo(31, 0, "RO", None),
+            "DATA": FieldInfo(31, 0, "RO", 0x0),
         },
     ),
     "EMCY_TIME_MS": RegInfo(
-        addr=0x64, access="RO", reset=None, stride=0,
+        addr=0x64, access="RO", reset=0x0, stride=0,
         fields={
-            "VALUE": FieldInfo(31, 0, "RO", None),
+            "VALUE": FieldInfo(31, 0, "RO", 0x0),
         },
     ),
     "EMCY_POP": RegInfo(
@@ -889,14 +900,14 @@ REGISTERS: dict[str, RegInfo] = {
     "SDO_CMD": RegInfo(
         addr=0x71, access="WO + RO", reset=None, stride=0,
         fields={
-            "NODE": FieldInfo(6, 0, "WO", None),
-            "UPLOAD": FieldInfo(7, 7, "WO", None),
+            "NODE": FieldInfo(7, 0, "WO", None),
             "SIZE": FieldInfo(18, 8, "WO", None),
+            "UPLOAD": FieldInfo(20, 20, "WO", None),
             "BUSY": FieldInfo(0, 0, "RO", None),
             "DONE": FieldInfo(1, 1, "RO", 0x0),
             "ERROR": FieldInfo(2, 2, "RO", None),
             "XFER_SIZE": FieldInfo(18, 8, "RO", None),
-            "REFUSED": FieldInfo(30, 30, "RO", None),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
             "ABORT_SENT": FieldInfo(31, 31, "RO", None),
         },
     ),
@@ -940,7 +951,7 @@ REGISTERS: dict[str, RegInfo] = {
         fields={
             "BUSY": FieldInfo(0, 0, "RO", None),
             "DONE": FieldInfo(1, 1, "RO", 0x0),
-            "REFUSED": FieldInfo(2, 2, "RO", None),
+            "REFUSED": FieldInfo(2, 2, "RO", 0x0),
             "NODES_OK": FieldInfo(15, 8, "RO", None),
             "NODES_FAIL": FieldInfo(23, 16, "RO", None),
         },
@@ -959,11 +970,12 @@ REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "ACFG_ENTRY": RegInfo(
-        addr=0x7C, access="RW", reset=0x0, stride=0,
+        addr=0x7C, access="RW + RO", reset=0x0, stride=0,
         fields={
             "ENTRY": FieldInfo(7, 0, "RW", 0x0),
-            "NODE": FieldInfo(14, 8, "RW", 0x0),
+            "NODE": FieldInfo(15, 8, "RW", 0x0),
             "SIZE": FieldInfo(18, 16, "RW", 0x0),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
         },
     ),
     "ACFG_OBJ": RegInfo(
@@ -1027,6 +1039,7 @@ PDO_REGISTERS: dict[str, RegInfo] = {
             "CH": FieldInfo(4, 0, "RW", 0x0),
             "RPDO": FieldInfo(7, 7, "RW", 0x0),
             "ACK": FieldInfo(8, 8, "pulse", 0x0),
+            "REFUSED": FieldInfo(30, 30, "RO", 0x0),
         },
     ),
     "PDO_INFO": RegInfo(
@@ -1346,25 +1359,25 @@ OMNI_REGISTERS: dict[str, RegInfo] = {
         },
     ),
     "OMNI_PMB_INFO": RegInfo(
-        addr=0xD9, access="RO + W1C", reset=None, stride=0,
+        addr=0xD9, access="RO + W1C", reset=0x0, stride=0,
         fields={
-            "SENDER": FieldInfo(7, 0, "RO", None),
-            "TYPE": FieldInfo(15, 8, "RO", None),
-            "DLC": FieldInfo(19, 16, "RO", None),
-            "OVERRUN": FieldInfo(30, 30, "W1C", None),
-            "NEW": FieldInfo(31, 31, "W1C", None),
+            "SENDER": FieldInfo(7, 0, "RO", 0x0),
+            "TYPE": FieldInfo(15, 8, "RO", 0x0),
+            "DLC": FieldInfo(19, 16, "RO", 0x0),
+            "OVERRUN": FieldInfo(30, 30, "W1C", 0x0),
+            "NEW": FieldInfo(31, 31, "W1C", 0x0),
         },
     ),
     "OMNI_PMB_LO": RegInfo(
-        addr=0xDA, access="RO", reset=None, stride=0,
+        addr=0xDA, access="RO", reset=0x0, stride=0,
         fields={
-            "DATA": FieldInfo(31, 0, "RO", None),
+            "DATA": FieldInfo(31, 0, "RO", 0x0),
         },
     ),
     "OMNI_PMB_HI": RegInfo(
-        addr=0xDB, access="RO", reset=None, stride=0,
+        addr=0xDB, access="RO", reset=0x0, stride=0,
         fields={
-            "DATA": FieldInfo(15, 0, "RO", None),
+            "DATA": FieldInfo(15, 0, "RO", 0x0),
         },
     ),
     "OMNI_BUS_BITS": RegInfo(
