@@ -624,6 +624,7 @@ async def run_fuzz(dut):
             json.dump({"seed": seed, "frames_injected": rep.frames_injected,
                        "hangs": rep.hangs, "pdo_lost": rep.pdo_lost,
                        "sdo_unbounded": rep.sdo_unbounded, "figures": rep.figures,
+                       "sdo_log": [r.__dict__ for r in fz.sdo_log],
                        "errors": rep.errors}, f, indent=1)
     assert not rep.errors, (f"seed {seed} (reproduce: FUZZ_SEED={seed} FUZZ_EPOCHS={n_epochs} "
                             f"FUZZ_EPOCH_MS={epoch_ms:g} make fuzz):\n{rep.summary()}")
@@ -764,6 +765,12 @@ def test_fuzz_checkers_can_fail():
     lost[[f.t_start for f in lost].index(3 * p)] = _frame(3 * p + 61 * bit, 0x080)
     lost.sort(key=lambda f: f.t_start)
     assert any("lost to 0x700" in e for e in check_sync(fires, lost, "chip", p, win, bit)[0])
+    # a lower-priority frame right after the master's destroyed SYNC (suspend) is explained
+    susp = sorted(frames[:3] + [_frame(3 * p, 0x080, 20, kind="error"),
+                                _frame(3 * p + 20 * bit, 0x700, 60, "raw"),
+                                _frame(3 * p + 80 * bit, 0x080)] + frames[4:],
+                  key=lambda f: f.t_start)
+    assert check_sync(fires, susp, "chip", p, win, bit)[0] == []
     idle = [f if f.t_start != 4 * p else _frame(4 * p + 30 * bit, 0x080) for f in frames]
     assert any("not explained" in e for e in check_sync(fires, idle, "chip", p, win, bit)[0])
     missing = [f for f in frames if f.t_start != 5 * p]
@@ -807,6 +814,13 @@ def test_fuzz_checkers_can_fail():
     many = SdoRecord(1, 0x1017, 0, False, 2, 0, sdo_patience_ps(False, 2, 5), t1=ms)
     errs, unb = check_sdo([ok, never, slow, odd, many], req, "chip", 5)
     assert unb == 3 and len(errs) == 4, errs
+    # a stale segment of the previous transfer before this one's initiate is not counted
+    dl = [_frame(10 * us, 0x601, dlc=8), _frame(300 * us, 0x601, dlc=8)]
+    dl[0].data = bytes([0x11, 1, 2, 3, 4, 5, 6, 7])
+    dl[1].data = bytes([0x2B, 0x17, 0x10, 0, 10, 0, 0, 0])
+    assert check_sdo([many], dl, "chip", 5) == ([], 0)
+    dl[0].data = bytes([0x2B, 0x17, 0x10, 0, 10, 0, 0, 0])  # two initiates: too many
+    assert check_sdo([many], dl, "chip", 5)[1] == 1
     # error state: the master may show any value of the last polling interval
     good = ErrorSnapshot(0, 8, 1, 0, False, False, ((9, 1, "error_active"),
                                                     (8, 1, "error_active")))
