@@ -655,9 +655,10 @@ def _run(request, seed: int, epochs: int, epoch_ms: float, report: str = "",
 SHORT = {"seeds": (11, 12), "epochs": 2, "epoch_ms": 8,
          "classes": ",".join(c for c in CLASSES if c != "chip_reset")}
 #: ``make bench``: two parts (one per xdist worker), each ``seeds_per_part`` seeds of
-#: ``epochs`` epochs of ``epoch_ms``: 19.2 s of epochs at the measured 5.8 injected frames
-#: per ms of epoch = about 111 000 frames (>= 100 000 asked); about 10.4 s simulated and
-#: 1 h (machine free) .. 3 h (machine shared) of wall time per part (docs/fuzz_bench.md).
+#: ``epochs`` epochs of ``epoch_ms``: 19.2 s of epochs at the measured 5.8..6.5 injected
+#: frames per ms of epoch = 111 000..125 000 frames (>= 100 000 asked); about 10.6 s
+#: simulated and 1.2 h (machine nearly free) .. 3 h (machine shared) of wall time per part
+#: (docs/fuzz_bench.md).
 #: FUZZ_BENCH_SCALE (0..1] shortens every epoch for a quick look (the frame figure is then
 #: not reached).
 BENCH = {"parts": 2, "seeds_per_part": 4, "epochs": 12, "epoch_ms": 200}
