@@ -64,6 +64,9 @@ size_t cm_ctx_size(void)
 
 cm_status_t cm_identify(cm_ctx_t *ctx)
 {
+    /* the header's own version: a variable, not a constant expression, so that the minor
+       comparison stays free of "always false" warnings when the header's minor is 0 */
+    static const uint32_t hdr_version = CM_VERSION_RESET;
     uint32_t id = RD(CM_REG_ID);
     uint32_t ver, info;
     if (id != CM_ID_RESET) {
@@ -71,8 +74,8 @@ cm_status_t cm_identify(cm_ctx_t *ctx)
     }
     ver = RD(CM_REG_VERSION);
     ctx->version = ver;
-    if (CM_GET(CM_VERSION_MAJOR, ver) != CM_GET(CM_VERSION_MAJOR, CM_VERSION_RESET)
-        || CM_GET(CM_VERSION_MINOR, ver) < CM_GET(CM_VERSION_MINOR, CM_VERSION_RESET)) {
+    if (CM_GET(CM_VERSION_MAJOR, ver) != CM_GET(CM_VERSION_MAJOR, hdr_version)
+        || CM_GET(CM_VERSION_MINOR, ver) < CM_GET(CM_VERSION_MINOR, hdr_version)) {
         return CM_ERR_VERSION;
     }
     ctx->n_sdo = (uint8_t)CM_GET(CM_SDO_SEL_CHANNELS, RD(CM_REG_SDO_SEL));

@@ -133,7 +133,7 @@ async def guide_steps_1_to_5(tb: SystemTB, hal: CHal) -> None:
     mark = len(hal.log)
     st, name, res = await upload(hal, 0, 3, 0x1008)
     assert st == c_hal.CM_OK, st
-    assert hal.writes(mark) == [(0x70, 0x00001008), (0x71, 0x00000083)]
+    assert hal.writes(mark) == [(0x70, 0x00001008), (0x71, 0x00100003)]
     expected = tb.slave(3).read_raw(0x1008, 0)
     assert res.size == len(expected) == 71, (res.size, len(expected))
     assert name == expected, (name, expected)
@@ -144,7 +144,7 @@ async def guide_steps_1_to_5(tb: SystemTB, hal: CHal) -> None:
     assert st == c_hal.CM_ERR_ABORT, st
     assert (res.abort_code, res.abort_sent) == (0x06020000, 0), (hex(res.abort_code),
                                                                  res.abort_sent)
-    assert hal.writes(mark) == [(0x70, 0x00002FFF), (0x71, 0x00000083)]
+    assert hal.writes(mark) == [(0x70, 0x00002FFF), (0x71, 0x00100003)]
 
 
 @cocotb.test(timeout_time=150, timeout_unit="ms")

@@ -44,6 +44,11 @@ class SpiPinBridge:
         #: levels and time of the last update (two pins changing together wake two watchers)
         self._last: tuple[int, int, int, int] | None = None
         self._error: BaseException | None = None
+        #: the model only sees transfers that start after it was attached: a bridge created
+        #: while CS is low (a transfer of the DUT that began before this test's model existed,
+        #: e.g. between two tests of one simulation) ignores the pins until CS has risen
+        cs_now = cs_n.value
+        self._armed = cs_now.is_resolvable and int(cs_now) == 1
         self._failed = Event()
         self._watchers = [cocotb.start_soon(self._watch(sig)) for sig in (cs_n, sck, mosi)]
         #: the bridge coroutine: ends with the error the model raised (a test may await it to
@@ -81,6 +86,10 @@ class SpiPinBridge:
         cs_n, sck, mosi = self._cs_n, self._sck, self._mosi
         t_ps = sim_time_ps()
         c = self._level(cs_n, "CS", t_ps)
+        if not self._armed:
+            if c == 0:
+                return
+            self._armed = True
         s = self._level(sck, "SCK", t_ps)
         if c == 0 or mosi.value.is_resolvable:
             m = self._level(mosi, "MOSI", t_ps)
