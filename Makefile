@@ -10,7 +10,7 @@ RTL    := $(shell sed -e 's/\#.*//' -e '/^[[:space:]]*$$/d' -e 's|^|rtl/|' rtl/f
 TB_VHD := $(wildcard tb/vhdl/*.vhd)
 PYDIRS := tb sim_models scripts
 
-.PHONY: help setup test demo lint synth-check synth bench waves docs drift-report clean
+.PHONY: help setup test demo lint synth-check synth bench fuzz waves docs drift-report clean
 
 help:
 	@echo "make setup        install Debian packages (ghdl-llvm, yosys) and the pinned .venv"
@@ -18,6 +18,7 @@ help:
 	@echo "make test         set up if needed, lint + synthesizability check + all tests"
 	@echo "make synth        GHDL + yosys synth_intel (Cyclone IV E LE) LUT/FF report"
 	@echo "make bench        benchmarks -> build/bench/results.json"
+	@echo "make fuzz         one fuzz-bench seed: FUZZ_SEED=<n> make fuzz (unset: random, printed)"
 	@echo "make waves TEST='<pytest id>'   re-run one test with a .ghw waveform"
 	@echo "make docs         render the WaveDrom timing diagrams in docs/wavedrom"
 	@echo "make drift-report Omni-ID clock-drift plots and dropout tables -> build/drift"
@@ -51,6 +52,12 @@ synth: $(STAMP)
 
 bench: synth
 	$(PY) scripts/bench.py
+
+# one seed of the system fuzz bench (docs/fuzz_bench.md); FUZZ_EPOCHS, FUZZ_EPOCH_MS,
+# FUZZ_CLASSES, FUZZ_TRACE, FUZZ_REPORT are passed through from the environment
+fuzz: $(STAMP)
+	FUZZ_SEED=$(or $(FUZZ_SEED),random) $(PY) -m pytest -p no:xdist -q -rA -s \
+	  tb/test_fuzz_system.py::test_fuzz_seed
 
 waves: $(STAMP)
 	@test -n "$(TEST)" || { echo "usage: make waves TEST='tb/test_x.py::test_x[params]'"; exit 2; }

@@ -28,6 +28,7 @@ LONG_FIRST = {
     "tb/test_omni_system.py::test_omni_system_grid[100k]": 82,
     "tb/test_sdo_channels_system.py::test_sdo_channels_system[2]": 58,
     "tb/test_host_guide.py": 46,
+    "tb/test_fuzz_system.py::test_fuzz_short": 60,
 }
 
 

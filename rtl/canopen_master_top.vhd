@@ -106,6 +106,7 @@ architecture rtl of canopen_master_top is
     signal int_canintf : std_logic_vector(7 downto 0);
     signal int_eflg    : std_logic_vector(7 downto 0);
     signal rx_overflow : std_logic_vector(1 downto 0);
+    signal chip_reset  : std_logic;
 
 begin
 
@@ -179,7 +180,8 @@ begin
             ctl_int_valid_i     => int_valid,
             ctl_int_canintf_i   => int_canintf,
             ctl_int_eflg_i      => int_eflg,
-            ctl_rx_overflow_i   => rx_overflow
+            ctl_rx_overflow_i   => rx_overflow,
+            ctl_chip_reset_i    => chip_reset
         );
 
     ctrl_inst : entity work.mcp2510_ctrl
@@ -237,6 +239,7 @@ begin
             err_tec_o        => tec,
             err_rec_o        => rec,
             err_eflg_o       => eflg,
+            chip_reset_o     => chip_reset,
             status_req_i     => '0',
             status_valid_o   => open,
             status_rdstat_o  => open,

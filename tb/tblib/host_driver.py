@@ -88,6 +88,17 @@ class AvalonSuffixMaster(AvalonMaster):
         "waitrequest": "waitrequest_o",
     }
 
+    async def _acquire_lock(self) -> None:
+        # cocotb-bus's lock does not check ``busy`` again after waking: when one coroutine
+        # releases the bus and takes it again at once (a poll loop), a second one that was
+        # waiting wakes up and drives the bus in the same cycle, and one of the two reads
+        # the other's register (found by the fuzz bench: a PDO_CFG read returned the SDO_CMD
+        # word of a concurrent SDO poll). Wait until the bus is really free.
+        while self.busy:
+            await self.busy_event.wait()
+        self.busy_event.clear()
+        self.busy = True
+
     async def write(self, address: int, value: int, byteenable: int | None = None) -> None:
         if byteenable is None or not hasattr(self.bus, "byteenable"):
             await super().write(address, value)
