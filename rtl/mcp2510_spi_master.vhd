@@ -322,19 +322,12 @@ begin
 
     end process engine_proc;
 
-    -- MISO input register (no reset: datapath, only used when sampled inside a transaction).
-    -- SO is high impedance while the chip is in reset (e.g. a RESET# glitch in the middle of a
-    -- READ): anything but '1' is taken as '0', so a floating SO gives defined bytes (in
-    -- simulation 'Z'/'X' would otherwise spread into lengths and the next bytes sent on MOSI)
+    -- MISO input register (no reset: datapath, only used when sampled inside a transaction)
     miso_reg_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
-            if spi_miso_i = '1' then
-                miso_q <= '1';
-            else
-                miso_q <= '0';
-            end if;
+            miso_q <= spi_miso_i;
         end if;
 
     end process miso_reg_proc;
