@@ -100,8 +100,7 @@ entity canopen_master_core is
         ctl_int_valid_i   : in    std_logic;                    -- strobe: INT handled
         ctl_int_canintf_i : in    std_logic_vector(7 downto 0); -- CANINTF
         ctl_int_eflg_i    : in    std_logic_vector(7 downto 0); -- EFLG
-        ctl_rx_overflow_i : in    std_logic_vector(1 downto 0); -- strobe: frame lost
-        ctl_chip_reset_i  : in    std_logic                     -- strobe: chip reset seen
+        ctl_rx_overflow_i : in    std_logic_vector(1 downto 0)  -- strobe: frame lost
     );
 end entity canopen_master_core;
 
@@ -247,8 +246,6 @@ architecture rtl of canopen_master_core is
     signal err_busoff : std_logic;
     signal err_reinit : std_logic;
     signal err_node   : std_logic;
-    -- the chip was reset behind the master's back (mcp2510_ctrl already re-initialises it)
-    signal err_chip : std_logic;
     -- state watchdog and St0 re-initialisation
     signal wd_us        : natural range 0 to WATCHDOG_US;
     signal backoff_us   : natural range 0 to backoff_us_c;
@@ -490,7 +487,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- FSM conditions
     -- ---------------------------------------------------------------------------------------------
-    err_pending   <= err_can or err_busoff or err_reinit or err_chip or err_node;
+    err_pending   <= err_can or err_busoff or err_reinit or err_node;
     sync_due      <= sync_en and (or sync_period_us) and not sync_loaded
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
     om_preload_ok <= '1' when om_feasible = '1'
@@ -568,7 +565,7 @@ begin
 
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
     -- by the node monitor after a node error is sent right away (T28)
-    err_fatal <= err_busoff or err_reinit or err_chip;
+    err_fatal <= err_busoff or err_reinit;
     err_nmt   <= err_node and mon_tx_req;
 
     -- ---------------------------------------------------------------------------------------------
@@ -598,7 +595,6 @@ begin
             err_can          <= '0';
             err_busoff       <= '0';
             err_reinit       <= '0';
-            err_chip         <= '0';
             err_node         <= '0';
             wd_us            <= 0;
             backoff_us       <= 0;
@@ -833,12 +829,6 @@ begin
             if host_reinit = '1' then
                 err_reinit <= '1';
             end if;
-            -- unexpected chip reset (CANSTAT.OPMOD not normal at an error poll): the controller
-            -- re-initialises the chip at once; the FSM goes through St13 -> St0 (G1) as for a
-            -- bus-off, so every service restarts from a freshly initialised chip
-            if ctl_chip_reset_i = '1' then
-                err_chip <= '1';
-            end if;
             if ev_lost /= (ev_lost'range => '0') or ev_toggle /= (ev_toggle'range => '0') then
                 err_node <= '1';
             end if;
@@ -846,7 +836,6 @@ begin
                 err_can    <= '0';
                 err_busoff <= '0';
                 err_reinit <= '0';
-                err_chip   <= '0';
                 err_node   <= '0';
             end if;
 
@@ -917,7 +906,7 @@ begin
 
     -- events and counters for the host block
     ev_node_any    <= (or ev_lost) or (or ev_toggle) or (or ev_bootup);
-    ev_can_error   <= in_error and (err_can or err_busoff or err_chip);
+    ev_can_error   <= in_error and (err_can or err_busoff);
     cnt_unexpected <= '1' when (in_rx = '1' and ctl_rx_valid_i = '1' and rx_head_ok = '0')
                                or (in_parse = '1' and cls_pdo = '0' and cls_sdo = '0'
                              and cls_nmt = '0')
@@ -929,7 +918,7 @@ begin
     cnt_rx_frame   <= rx_pop;
     cnt_tx_frame   <= or ctl_tx_done_i;
     cnt_tx_error   <= (or ctl_tx_err_i) or (or ctl_tx_drop_i);
-    cnt_can_error  <= (ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c)) or ctl_chip_reset_i;
+    cnt_can_error  <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
     ev_init        <= (ctl_init_done_i and not init_done_q)
                       or (ctl_init_fail_i and not init_fail_q);
 

@@ -106,7 +106,6 @@ architecture rtl of canopen_master_top is
     signal int_canintf : std_logic_vector(7 downto 0);
     signal int_eflg    : std_logic_vector(7 downto 0);
     signal rx_overflow : std_logic_vector(1 downto 0);
-    signal chip_reset  : std_logic;
 
 begin
 
@@ -180,8 +179,7 @@ begin
             ctl_int_valid_i     => int_valid,
             ctl_int_canintf_i   => int_canintf,
             ctl_int_eflg_i      => int_eflg,
-            ctl_rx_overflow_i   => rx_overflow,
-            ctl_chip_reset_i    => chip_reset
+            ctl_rx_overflow_i   => rx_overflow
         );
 
     ctrl_inst : entity work.mcp2510_ctrl
@@ -239,7 +237,6 @@ begin
             err_tec_o        => tec,
             err_rec_o        => rec,
             err_eflg_o       => eflg,
-            chip_reset_o     => chip_reset,
             status_req_i     => '0',
             status_valid_o   => open,
             status_rdstat_o  => open,

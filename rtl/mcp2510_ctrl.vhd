@@ -28,11 +28,6 @@
 --     with a strobe (tx_done_o, tx_err_o, tx_arb_lost_o, rx_overflow_o, int_valid_o + flags).
 --   * Status on request: READ STATUS, TEC/REC, CANINTF/EFLG and TXB0-2CTRL (status_valid_o).
 --   * tx_abort_i aborts all pending transmissions (CANCTRL.ABAT) and reports them.
---   * Error poll (every ERR_POLL_US and after an error INT): READ TEC, REC and CANSTAT (mirrored
---     at 1Eh), READ EFLG. CANSTAT.OPMOD other than normal means the chip was reset (RESET pin
---     glitch, brown-out) or left its mode without this controller: buffers and configuration
---     are gone. chip_reset_o is pulsed, init_done_o drops, no buffer may be fired any more and
---     the initialisation runs again from the RESET instruction.
 -- =================================================================================================
 
 library ieee;
@@ -115,8 +110,6 @@ entity mcp2510_ctrl is
         err_tec_o   : out   std_logic_vector(7 downto 0); -- TEC
         err_rec_o   : out   std_logic_vector(7 downto 0); -- REC
         err_eflg_o  : out   std_logic_vector(7 downto 0); -- EFLG
-        -- unexpected reset of the chip (CANSTAT.OPMOD not normal at an error poll)
-        chip_reset_o : out   std_logic; -- strobe: detected, the initialisation runs again
         -- status snapshot on request
         status_req_i     : in    std_logic;                     -- pulse: read status registers
         status_valid_o   : out   std_logic;                     -- strobe: snapshot updated
@@ -334,6 +327,10 @@ architecture rtl of mcp2510_ctrl is
 
                 return S_STAT_FLAGS;
 
+            when S_ERR_CNT =>
+
+                return S_ERR_FLG;
+
             when others =>
 
                 return S_IDLE; -- S_ABORT_CLEAR
@@ -378,8 +375,6 @@ architecture rtl of mcp2510_ctrl is
     -- error poll: due (interval over, or an error INT was handled), and the interval counter
     signal err_req : std_logic;
     signal err_cnt : natural range 0 to err_poll_c;
-    -- third byte of the error poll's first READ (CANSTAT) shows normal mode
-    signal err_opmod_ok : std_logic;
 
     -- values read on an INT
     signal intf_q    : byte_t;
@@ -697,17 +692,10 @@ begin
                 cmd_len   <= x"1";
 
             -- TEC, REC
-            when S_STAT_ERRCNT =>
+            when S_STAT_ERRCNT | S_ERR_CNT =>
 
                 cmd_addr <= MCP_TEC_C;
                 cmd_len  <= x"2";
-
-            -- TEC, REC and CANSTAT (mirrored at 1Eh): one more byte tells whether the chip
-            -- is still in the normal mode this controller set
-            when S_ERR_CNT =>
-
-                cmd_addr <= MCP_TEC_C;
-                cmd_len  <= x"3";
 
             when S_ERR_FLG =>
 
@@ -782,7 +770,6 @@ begin
             err_req        <= '0';
             err_cnt        <= err_poll_c;
             err_valid_o    <= '0';
-            chip_reset_o   <= '0';
             abort_req      <= '0';
             reinit_req     <= '0';
             status_req     <= '0';
@@ -801,7 +788,6 @@ begin
         elsif rising_edge(clk_i) then
             -- strobes
             err_valid_o    <= '0';
-            chip_reset_o   <= '0';
             cmd_valid      <= '0';
             fifo_push      <= '0';
             tx_loaded_o    <= '0';
@@ -869,26 +855,12 @@ begin
 
                 -- one instruction, then always the same next state (simple_next)
                 when S_CFG_MASKS | S_CFG_FILT_A | S_CFG_FILT_B | S_CFG_RXB0 | S_CFG_RXB1
-                     | S_ABORT_CLEAR | S_STAT_RDSTAT | S_STAT_ERRCNT =>
+                     | S_ABORT_CLEAR | S_STAT_RDSTAT | S_STAT_ERRCNT | S_ERR_CNT =>
 
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
                         go(simple_next(state));
-                    end if;
-
-                -- TEC, REC, CANSTAT: OPMOD not normal = chip reset behind our back (see header)
-                when S_ERR_CNT =>
-
-                    if issued = '0' then
-                        issue;
-                    elsif rsp_valid = '1' and err_opmod_ok = '0' then
-                        chip_reset_o <= '1';
-                        init_done_o  <= '0';
-                        txb_loaded   <= (others => '0');
-                        go(S_RESET_CMD);
-                    elsif rsp_valid = '1' then
-                        go(S_ERR_FLG);
                     end if;
 
                 when S_CFG_VERIFY =>
@@ -1322,10 +1294,6 @@ begin
         end if;
 
     end process capture_proc;
-
-    err_opmod_ok <= '1' when unsigned(byte_of(rsp_rdata, 2) and MCP_CANSTAT_OPMOD_MASK_C)
-                             = MCP_OPMODE_NORMAL_C else
-                    '0';
 
     -- a request is taken in S_IDLE when nothing more urgent is waiting
     tx_ready_o <= '1' when state = S_IDLE and reinit_req = '0' and reinit_i = '0'

@@ -71,7 +71,7 @@
 #define CM_REG_CNT_HB_LOSS_BYTE               0x05Cu
 #define CM_REG_CNT_GUARD_ERR                  0x18u        /* RO: counter: node guarding errors */
 #define CM_REG_CNT_GUARD_ERR_BYTE             0x060u
-#define CM_REG_CNT_CAN_ERROR                  0x19u        /* RO: counter: CAN controller error interrupts and resets of the chip the master did not cause */
+#define CM_REG_CNT_CAN_ERROR                  0x19u        /* RO: counter: CAN controller error interrupts */
 #define CM_REG_CNT_CAN_ERROR_BYTE             0x064u
 #define CM_REG_CNT_EMCY                       0x1Au        /* RO: counter: EMCY frames received */
 #define CM_REG_CNT_EMCY_BYTE                  0x068u
