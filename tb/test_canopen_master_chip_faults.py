@@ -27,6 +27,7 @@ from sim_models.mcp2510 import regs as MR
 from sim_models.sim_time import PS_PER_US
 from tb.tblib import regmap as R
 from tb.tblib.model_clock import sim_time_ps
+from tb.tblib.pdo_cycle import SYSTEM
 from tb.tblib.runner import run_cocotb
 from tb.tblib.system_tb import SystemTB
 
@@ -330,16 +331,6 @@ async def run_bus_off_shown_and_recovered(dut):
 
 
 # ============================================================================ pytest entry
-SYSTEM = {
-    "CLK_FREQ_HZ": 20_000_000,
-    "SPI_SCLK_HZ": 5_000_000,
-    "OSC_FREQ_HZ": 16_000_000,
-    "CAN_BITRATE_BPS": 1_000_000,
-    "MAX_NODES": 4,
-    "RESET_WAIT_US": 20,
-}
-
-
 @pytest.mark.sim
 def test_canopen_master_chip_faults(request):
     run_cocotb(toplevel="canopen_master_top", module="tb.test_canopen_master_chip_faults",

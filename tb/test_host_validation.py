@@ -17,6 +17,7 @@ from cocotb.triggers import Timer
 from sim_models.canopen_slave import NmtState
 from tb.tblib import regmap as R
 from tb.tblib.host_driver import NMT_START, NmtRefused, Refused, SdoRefused
+from tb.tblib.pdo_cycle import SYSTEM
 from tb.tblib.runner import param, run_cocotb
 from tb.tblib.system_tb import SystemTB
 
@@ -259,16 +260,6 @@ async def run_sync_overflow_change(dut):
 
 
 # ============================================================================ pytest entry
-SYSTEM = {
-    "CLK_FREQ_HZ": 20_000_000,
-    "SPI_SCLK_HZ": 5_000_000,
-    "OSC_FREQ_HZ": 16_000_000,
-    "CAN_BITRATE_BPS": 1_000_000,
-    "MAX_NODES": 4,
-    "RESET_WAIT_US": 20,
-}
-
-
 @pytest.mark.sim
 def test_host_validation(request):
     run_cocotb(toplevel="canopen_master_top", module="tb.test_host_validation",
