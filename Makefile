@@ -16,7 +16,7 @@ help:
 	@echo "make setup        install Debian packages (ghdl-llvm, yosys) and the pinned .venv"
 	@echo "make demo         set up if needed, run the most complete system simulation"
 	@echo "make test         set up if needed, lint + synthesizability check + all tests"
-	@echo "make synth        GHDL + yosys synth_intel (Cyclone IV E LE) LUT/FF report"
+	@echo "make synth        GHDL + yosys synth_intel cycloneive: LUT/FF/M9K/levels (SYNTH_ARGS=-j1)"
 	@echo "make bench        benchmarks -> build/bench/results.json"
 	@echo "make fuzz         one fuzz-bench seed: FUZZ_SEED=<n> make fuzz (unset: random, printed)"
 	@echo "make waves TEST='<pytest id>'   re-run one test with a .ghw waveform"
@@ -48,7 +48,7 @@ test: lint synth-check
 	$(PY) -m pytest -n auto --maxschedchunk=1 -m "not bench" -q
 
 synth: $(STAMP)
-	$(PY) scripts/synth.py
+	$(PY) scripts/synth.py $(SYNTH_ARGS)
 
 bench: synth
 	$(PY) scripts/bench.py

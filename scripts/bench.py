@@ -3,7 +3,10 @@
 
 Writes ``build/bench/results.json``, one flat ``{"metric_name": number}`` object, and prints it
 as a table. Also folds in the synthesis estimate of ``build/synth/report.json`` when present
-(``make bench`` runs ``make synth`` first) as ``synth_<entity>_luts`` / ``synth_<entity>_ffs``.
+(``make bench`` runs ``make synth`` first): per build (entity or variant of
+``scripts/synth.py``) ``synth_<build>_luts`` / ``_ffs`` / ``_m9k`` / ``_levels``, the slopes
+``synth_luts_per_extra_pdo_channel`` / ``synth_luts_per_extra_sdo_channel`` (and ``ffs_``),
+and ``synth_max_lut_levels``, the deepest register-to-register path over all builds.
 """
 
 from __future__ import annotations
@@ -17,6 +20,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "build" / "bench"
 FRAGMENTS = BENCH / "fragments"
+
+
+def synth_metrics(report: dict) -> dict[str, float]:
+    """The flat metrics of a ``scripts/synth.py`` report (see the module docstring)."""
+    out: dict[str, float] = {}
+    for build, r in report["builds"].items():
+        for key in ("luts", "ffs", "m9k", "levels"):
+            out[f"synth_{build}_{key}"] = r[key]
+    for kind, s in report["slopes"].items():
+        out[f"synth_luts_per_extra_{kind}_channel"] = s["luts_per_channel"]
+        out[f"synth_ffs_per_extra_{kind}_channel"] = s["ffs_per_channel"]
+    out["synth_max_lut_levels"] = report["max_lut_levels"]
+    return out
 
 
 def main() -> int:
@@ -37,9 +53,7 @@ def main() -> int:
             results[k] = v
     synth = ROOT / "build" / "synth" / "report.json"
     if synth.exists():
-        for entity, r in json.loads(synth.read_text()).items():
-            results[f"synth_{entity}_luts"] = r["luts"]
-            results[f"synth_{entity}_ffs"] = r["ffs"]
+        results.update(synth_metrics(json.loads(synth.read_text())))
     if not results:
         print("no metrics were written", file=sys.stderr)
         return 1
