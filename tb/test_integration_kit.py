@@ -111,8 +111,8 @@ def core_problems(core: dict, order: list[Path], root: Path = ROOT) -> list[str]
     synth = targets.get("synth", {})
     opts = synth.get("flow_options", {})
     if (opts.get("tool"), opts.get("arch"), opts.get("yosys_synth_options")) != (
-            "yosys", "intel", ["-family cycloneiv"]):
-        problems.append(f"target synth: expected yosys synth_intel -family cycloneiv, got {opts}")
+            "yosys", "intel", ["-family cycloneive"]):
+        problems.append(f"target synth: expected yosys synth_intel -family cycloneive, got {opts}")
     quartus = targets.get("quartus", {})
     q = quartus.get("tools", {}).get("quartus", {})
     if (q.get("family"), q.get("device")) != (FAMILY, DEVICE):
@@ -246,10 +246,10 @@ def test_fusesoc_synth_target_flow(tmp_path):
     work = build / "canopen_master_ip_canopen_master_1.0" / "synth"
     assert (work / "canopen_master_ip_canopen_master_1.0.json").stat().st_size > 0
     log = (work / "yosys.log").read_text()
-    assert "Executing SYNTH_INTEL pass" in log and "/intel/cycloneiv/cells_sim.v" in log
+    assert "Executing SYNTH_INTEL pass" in log and "/intel/cycloneive/cells_sim.v" in log
     assert "canopen_master_top.v" in log  # the generator's netlist
-    cells = dict(re.findall(r"^\s+(cycloneiv_lcell_comb|dffeas)\s+(\d+)$", log, re.M))
-    assert int(cells["dffeas"]) >= 3 and int(cells["cycloneiv_lcell_comb"]) >= 1, cells
+    cells = dict(re.findall(r"^\s+(cycloneive_lcell_comb|dffeas)\s+(\d+)$", log, re.M))
+    assert int(cells["dffeas"]) >= 3 and int(cells["cycloneive_lcell_comb"]) >= 1, cells
 
 
 def test_fusesoc_synth_target_can_fail(tmp_path):
