@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -328,8 +329,9 @@ def synth_one(name: str, entity: str, vfile: Path, work: Path) -> dict[str, obje
     yres = run(["yosys", "-q", "-l", str(log), "-p", script], work)
     if yres.returncode:
         raise RuntimeError(f"yosys failed for {name}:\n{yres.stdout}{yres.stderr}")
+    text = log.read_text()
     try:
-        r = analyse_netlist(json.loads(net.read_text()), entity, log.read_text())
+        r = analyse_netlist(json.loads(net.read_text()), entity, text)
     except ValueError as e:
         raise RuntimeError(f"{name}: {e}") from e
     net.unlink()  # tens of MB for the top; the log and the .stat stay
@@ -404,12 +406,17 @@ def main() -> None:
     t0 = time.monotonic()
     report = estimate(names, max(1, args.jobs), args.only)
     total = round(time.monotonic() - t0, 1)
+    # CPU time of all finished child processes (ghdl, yosys and its ABC runs): on a shared
+    # machine a steadier figure than the wall time
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = round(kids.ru_utime + kids.ru_stime, 1)
     result = {
         "family": FAMILY,
         "builds": report,
         "slopes": slopes(report),
         "max_lut_levels": max(r["levels"] for r in report.values()),
         "wall_seconds": total,
+        "cpu_seconds": cpu,
         "jobs": args.jobs,
     }
     OUT.mkdir(parents=True, exist_ok=True)
@@ -423,7 +430,8 @@ def main() -> None:
         print(f"per extra {kind.upper()} channel ({s['base']} -> {s['more']}, "
               f"+{s['extra_channels']}): {s['luts_per_channel']} LUTs, "
               f"{s['ffs_per_channel']} FFs, {s['m9k_per_channel']} M9K")
-    print(f"max LUT levels: {result['max_lut_levels']}; {total} s with {args.jobs} job(s)")
+    print(f"max LUT levels: {result['max_lut_levels']}; {total} s wall, {cpu} s CPU, "
+          f"{args.jobs} job(s)")
     print(f"written: {OUT / 'report.json'}")
 
 
