@@ -349,6 +349,8 @@ def estimate(names: list[str], jobs: int, only: list[str] | None = None) -> dict
     work = OUT / "work"
     analyse(work)
     builds = [t for t in targets(names) if not only or t[0] in only]
+    if not builds:
+        sys.exit(f"no build named {only}; builds: {[t[0] for t in targets(names)]}")
     todo = []
     for name, entity, gens in builds:
         res = ghdl_synth(entity, gens, work)
