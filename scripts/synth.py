@@ -32,6 +32,10 @@ RTL = ROOT / "rtl"
 OUT = ROOT / "build" / "synth"
 LIB = "canopen_master"
 ENV = dict(os.environ, GHDL_BACKEND=os.environ.get("GHDL_BACKEND", "llvm"))
+#: VHDL standard of the RTL (Quartus versions for Cyclone III read VHDL-2008 only in part)
+STD = "93c"
+#: standard of the simulations (tb/tblib/runner.py): the RTL must analyse under it too
+SIM_STD = "08"
 
 
 def sources() -> list[Path]:
@@ -55,11 +59,11 @@ def run(cmd: list[str], cwd: Path, **kw) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=cwd, env=ENV, text=True, capture_output=True, **kw)
 
 
-def analyse(work: Path) -> None:
+def analyse(work: Path, std: str = STD) -> None:
     work.mkdir(parents=True, exist_ok=True)
-    res = run(["ghdl", "-a", "--std=08", f"--work={LIB}", *map(str, sources())], work)
+    res = run(["ghdl", "-a", f"--std={std}", f"--work={LIB}", *map(str, sources())], work)
     if res.returncode:
-        sys.exit(f"ghdl -a failed:\n{res.stdout}{res.stderr}")
+        sys.exit(f"ghdl -a --std={std} failed:\n{res.stdout}{res.stderr}")
 
 
 def add_case_defaults(verilog: str) -> str:
@@ -97,11 +101,13 @@ def targets(names: list[str]) -> list[tuple[str, str, list[str]]]:
 
 
 def check(names: list[str]) -> int:
+    analyse(OUT / "check08", SIM_STD)
+    print(f"ghdl -a --std={SIM_STD} of rtl/files.f       ok")
     work = OUT / "check"
     analyse(work)
     failed = 0
     for name, entity, gens in targets(names):
-        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", *gens, "--out=verilog",
+        res = run(["ghdl", "--synth", f"--std={STD}", f"--work={LIB}", *gens, "--out=verilog",
                    entity], work)
         status = "ok" if res.returncode == 0 else "FAILED"
         print(f"ghdl --synth {name:32s} {status}")
@@ -118,7 +124,7 @@ def estimate(names: list[str]) -> dict[str, dict[str, int]]:
     analyse(work)
     report: dict[str, dict[str, int]] = {}
     for name, entity, gens in targets(names):
-        res = run(["ghdl", "--synth", "--std=08", f"--work={LIB}", *gens, "--out=verilog",
+        res = run(["ghdl", "--synth", f"--std={STD}", f"--work={LIB}", *gens, "--out=verilog",
                    entity], work)
         if res.returncode:
             sys.exit(f"ghdl --synth {name} failed:\n{res.stderr}")
