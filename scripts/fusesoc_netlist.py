@@ -33,8 +33,8 @@ def main(config_file: str) -> None:
     env = dict(os.environ, GHDL_BACKEND=os.environ.get("GHDL_BACKEND", "llvm"))
     files = [str(p) for p in synth.sources()]
     work = Path.cwd()
-    for cmd in (["ghdl", "-a", "--std=08", f"--work={synth.LIB}", *files],
-                ["ghdl", "--synth", "--std=08", f"--work={synth.LIB}", *generics,
+    for cmd in (["ghdl", "-a", f"--std={synth.STD}", f"--work={synth.LIB}", *files],
+                ["ghdl", "--synth", f"--std={synth.STD}", f"--work={synth.LIB}", *generics,
                  "--out=verilog", top]):
         res = subprocess.run(cmd, cwd=work, env=env, text=True, capture_output=True,
                              check=False)
