@@ -34,12 +34,14 @@ setup:
 demo: $(STAMP)
 	$(PY) scripts/demo.py
 
-# VSG exits 0 on warnings; any reported line (error or warning) fails the lint here
+# VSG exits 0 on warnings; any reported line (error or warning) fails the lint here.
+# sensitivity.py: every combinational process lists exactly the signals it reads (VHDL-93)
 lint: $(STAMP)
 	@out=$$($(VENV)/bin/vsg -c scripts/vsg.yaml -of syntastic -f $(RTL) $(TB_VHD)); \
 	  if [ -n "$$out" ]; then echo "$$out"; echo "VSG: violations above"; exit 1; fi; \
 	  echo "VSG: $(words $(RTL) $(TB_VHD)) files clean"
 	$(VENV)/bin/ruff check $(PYDIRS)
+	$(PY) scripts/sensitivity.py
 
 synth-check: $(STAMP)
 	$(PY) scripts/synth.py --check

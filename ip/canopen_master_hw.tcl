@@ -47,7 +47,7 @@ set_module_property VALIDATION_CALLBACK          validate
 # the working library (e.g. "entity work.canopen_master_core"), so they compile into whatever
 # library the generated system chooses (add_fileset_file has no documented per-file library
 # argument); see "VHDL library" in docs/platform_designer.md.
-# VHDL-2008: set VHDL_INPUT_VERSION VHDL_2008 in the Quartus project (the .qsf).
+# The RTL is VHDL-93 (Quartus' default VHDL_INPUT_VERSION VHDL_1993; VHDL_2008 compiles it too).
 # QUARTUS_SYNTH also carries canopen_master.sdc (false paths of the reset and pin synchronisers).
 # -------------------------------------------------------------------------------------------------
 add_fileset QUARTUS_SYNTH QUARTUS_SYNTH "" ""

@@ -194,22 +194,6 @@ architecture rtl of canopen_host_regs is
     -- Elaboration-time configuration
     -- ---------------------------------------------------------------------------------------------
 
-    function clog2 (n : positive) return natural is
-
-        variable bits : natural := 0;
-
-    begin
-
-        while 2 ** bits < n loop
-
-            bits := bits + 1;
-
-        end loop;
-
-        return bits;
-
-    end function clog2;
-
     -- counters in address order, CNT_RX_FRAMES .. CNT_EMCY
     constant cnt_num_c  : positive := REG_CNT_EMCY_C - REG_CNT_RX_FRAMES_C + 1;
     constant irq_bits_c : positive := IRQ_STATUS_CONFIG_C + 1;
@@ -252,15 +236,6 @@ architecture rtl of canopen_host_regs is
     -- ---------------------------------------------------------------------------------------------
     -- Helpers
     -- ---------------------------------------------------------------------------------------------
-
-    -- address compare without arithmetic (no numeric_std warnings on an undriven bus)
-
-    function addr_is (addr : std_logic_vector; n : natural) return boolean is
-    begin
-
-        return addr = std_logic_vector(to_unsigned(n, addr'length));
-
-    end function addr_is;
 
     -- a SYNC_OVERFLOW write is accepted: 0 or 2..240 (CiA 301 1019h), and while the SYNC
     -- producer runs only the value it already has
@@ -384,12 +359,12 @@ begin
 
     sdo_sel <= to_integer(unsigned(sdo_chan));
 
-    buf_sel <= '1' when addr_is(avs_address_i(7 downto buf_bits_c), buf_win_c) else
+    buf_sel <= '1' when is_off(avs_address_i(7 downto buf_bits_c), buf_win_c) else
                '0';
-    pdo_sel <= '1' when addr_is(avs_address_i(7 downto pdo_bits_c), pdo_win_c) else
+    pdo_sel <= '1' when is_off(avs_address_i(7 downto pdo_bits_c), pdo_win_c) else
                '0';
 
-    cnt_clear <= '1' when avs_write_i = '1' and addr_is(avs_address_i, REG_CTRL_C)
+    cnt_clear <= '1' when avs_write_i = '1' and is_off(avs_address_i, REG_CTRL_C)
                           and wr_ones(CTRL_CLR_COUNTERS_C) = '1' else
                  '0';
 
@@ -456,13 +431,13 @@ begin
             ev_v                           := (others => '0');
             ev_v(IRQ_STATUS_NODE_C)        := ev_node_i;
             ev_v(IRQ_STATUS_EMCY_C)        := ev_emcy_i;
-            ev_v(IRQ_STATUS_SDO_DONE_C)    := or ev_sdo_done_i;
+            ev_v(IRQ_STATUS_SDO_DONE_C)    := or_reduce(ev_sdo_done_i);
             ev_v(IRQ_STATUS_CAN_ERROR_C)   := ev_can_error_i;
             ev_v(IRQ_STATUS_SYNC_C)        := ev_sync_i;
             ev_v(IRQ_STATUS_FRAME_ERROR_C) := ev_frame_error_i;
             ev_v(IRQ_STATUS_INIT_C)        := ev_init_i;
             ev_v(IRQ_STATUS_CONFIG_C)      := ev_acfg_done_i;
-            if avs_write_i = '1' and addr_is(avs_address_i, REG_IRQ_STATUS_C) then
+            if avs_write_i = '1' and is_off(avs_address_i, REG_IRQ_STATUS_C) then
                 irq_status <= (irq_status and not wr_ones(irq_status'range)) or ev_v;
             else
                 irq_status <= irq_status or ev_v;
@@ -476,23 +451,23 @@ begin
             end if;
 
             if avs_write_i = '1' then
-                if addr_is(avs_address_i, REG_CTRL_C) then
+                if is_off(avs_address_i, REG_CTRL_C) then
                     sync_en  <= wr_merge(CTRL_SYNC_EN_C);
                     omni_en  <= wr_merge(CTRL_OMNI_C);
                     reinit_o <= wr_ones(CTRL_REINIT_C);
                 end if;
-                if addr_is(avs_address_i, REG_IRQ_ENABLE_C) then
+                if is_off(avs_address_i, REG_IRQ_ENABLE_C) then
                     irq_enable <= wr_merge(irq_enable'range);
                 end if;
-                if addr_is(avs_address_i, REG_NMT_CMD_C) then
+                if is_off(avs_address_i, REG_NMT_CMD_C) then
                     nmt_req_o <= '1';
                 end if;
-                if addr_is(avs_address_i, REG_SYNC_PERIOD_US_C) then
+                if is_off(avs_address_i, REG_SYNC_PERIOD_US_C) then
                     sync_period <= wr_merge(SYNC_PERIOD_US_VALUE_HI_C downto
                                             SYNC_PERIOD_US_VALUE_LO_C);
                 end if;
                 -- CiA 301 1019h: 0 or 2..240; no change while the SYNC producer runs
-                if addr_is(avs_address_i, REG_SYNC_OVERFLOW_C) then
+                if is_off(avs_address_i, REG_SYNC_OVERFLOW_C) then
                     if sync_ovf_ok(wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
                                             SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
                                    sync_en = '1' and unsigned(sync_period) /= 0) then
@@ -503,61 +478,61 @@ begin
                         ovf_refused <= '1';
                     end if;
                 end if;
-                if addr_is(avs_address_i, REG_SYNC_WINDOW_US_C) then
+                if is_off(avs_address_i, REG_SYNC_WINDOW_US_C) then
                     sync_window <= wr_merge(SYNC_WINDOW_US_VALUE_HI_C downto
                                             SYNC_WINDOW_US_VALUE_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_EMCY_STATUS_C) then
+                if is_off(avs_address_i, REG_EMCY_STATUS_C) then
                     emcy_clear_o <= wr_ones(EMCY_STATUS_LOST_C);
                 end if;
-                if addr_is(avs_address_i, REG_EMCY_POP_C) then
+                if is_off(avs_address_i, REG_EMCY_POP_C) then
                     emcy_pop_o <= '1';
                 end if;
-                if addr_is(avs_address_i, REG_SDO_OBJ_C) then
+                if is_off(avs_address_i, REG_SDO_OBJ_C) then
                     sdo_index    <= wr_merge(SDO_OBJ_INDEX_HI_C downto SDO_OBJ_INDEX_LO_C);
                     sdo_subindex <= wr_merge(SDO_OBJ_SUBINDEX_HI_C downto SDO_OBJ_SUBINDEX_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_SDO_CMD_C) then
+                if is_off(avs_address_i, REG_SDO_CMD_C) then
                     sdo_req_o <= '1';
                 end if;
                 -- a channel number the core does not have is ignored
-                if addr_is(avs_address_i, REG_SDO_SEL_C)
+                if is_off(avs_address_i, REG_SDO_SEL_C)
                    and to_integer(unsigned(wr_merge(SDO_SEL_CHAN_HI_C downto
                                                        SDO_SEL_CHAN_LO_C))) < N_SDO then
                     sdo_chan <= wr_merge(SDO_SEL_CHAN_HI_C downto SDO_SEL_CHAN_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) then
+                if is_off(avs_address_i, REG_ACFG_FAIL_SEL_C) then
                     acfg_fail_sel <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto
                                               ACFG_FAIL_SEL_INDEX_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_SDO_TIMEOUT_MS_C) then
+                if is_off(avs_address_i, REG_SDO_TIMEOUT_MS_C) then
                     sdo_timeout <= wr_merge(SDO_TIMEOUT_MS_VALUE_HI_C downto
                                             SDO_TIMEOUT_MS_VALUE_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_SDO_COB_C) then
+                if is_off(avs_address_i, REG_SDO_COB_C) then
                     sdo_cob_req  <= wr_merge(SDO_COB_REQUEST_HI_C downto SDO_COB_REQUEST_LO_C);
                     sdo_cob_resp <= wr_merge(SDO_COB_RESPONSE_HI_C downto SDO_COB_RESPONSE_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_ACFG_CTRL_C) then
+                if is_off(avs_address_i, REG_ACFG_CTRL_C) then
                     acfg_nodes   <= wr_merge(ACFG_CTRL_START_NODES_C);
                     acfg_start_o <= wr_ones(ACFG_CTRL_START_C);
                     if wr_ones(ACFG_CTRL_START_C) = '1' then
                         acfg_done <= '0';
                     end if;
                 end if;
-                if addr_is(avs_address_i, REG_ACFG_ENTRY_C) then
+                if is_off(avs_address_i, REG_ACFG_ENTRY_C) then
                     acfg_entry <= unsigned(wr_merge(ACFG_ENTRY_ENTRY_HI_C downto
                                                     ACFG_ENTRY_ENTRY_LO_C));
                     acfg_node  <= wr_merge(ACFG_ENTRY_NODE_HI_C downto ACFG_ENTRY_NODE_LO_C);
                     acfg_size  <= wr_merge(ACFG_ENTRY_SIZE_HI_C downto ACFG_ENTRY_SIZE_LO_C);
                 end if;
-                if addr_is(avs_address_i, REG_ACFG_OBJ_C) then
+                if is_off(avs_address_i, REG_ACFG_OBJ_C) then
                     acfg_index <= wr_merge(ACFG_OBJ_INDEX_HI_C downto ACFG_OBJ_INDEX_LO_C);
                     acfg_sub   <= wr_merge(ACFG_OBJ_SUBINDEX_HI_C downto ACFG_OBJ_SUBINDEX_LO_C);
                 end if;
                 -- ACFG_VALUE: store the entry now, then point at the next one
                 -- (an entry with NODE > 127, or a size other than 1..4, is refused)
-                if addr_is(avs_address_i, REG_ACFG_VALUE_C) then
+                if is_off(avs_address_i, REG_ACFG_VALUE_C) then
                     if acfg_entry_ok(acfg_node, acfg_size) then
                         acfg_tbl_we_o <= '1';
                         acfg_entry    <= acfg_entry + 1;
@@ -570,20 +545,20 @@ begin
                 -- node slots (static indices)
                 for k in 0 to MAX_NODES - 1 loop
 
-                    if addr_is(avs_address_i, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C) then
+                    if is_off(avs_address_i, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C) then
                         node_id(k)        <= wr_merge(NODE_CFG_NODE_ID_HI_C downto
                                                       NODE_CFG_NODE_ID_LO_C);
                         node_mode(k)      <= wr_merge(NODE_CFG_MODE_HI_C downto NODE_CFG_MODE_LO_C);
                         node_autostart(k) <= wr_merge(NODE_CFG_AUTOSTART_C);
                         node_rst_loss(k)  <= wr_merge(NODE_CFG_RESET_ON_LOSS_C);
                     end if;
-                    if addr_is(avs_address_i, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
+                    if is_off(avs_address_i, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
                         node_time(k) <= wr_merge(NODE_TIME_TIME_MS_HI_C downto
                                                  NODE_TIME_TIME_MS_LO_C);
                         node_life(k) <= wr_merge(NODE_TIME_LIFE_FACTOR_HI_C downto
                                                  NODE_TIME_LIFE_FACTOR_LO_C);
                     end if;
-                    if addr_is(avs_address_i, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
+                    if is_off(avs_address_i, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
                         node_clear_o(k) <= wr_ones(NODE_STATUS_LOST_C)
                                            or wr_ones(NODE_STATUS_TOGGLE_ERR_C)
                                            or wr_ones(NODE_STATUS_BOOTUP_C);
@@ -603,15 +578,15 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if avs_write_i = '1' and addr_is(avs_address_i, REG_NMT_CMD_C) then
+            if avs_write_i = '1' and is_off(avs_address_i, REG_NMT_CMD_C) then
                 nmt_cs_o   <= avs_writedata_i(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
                 nmt_node_o <= avs_writedata_i(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
             end if;
-            if avs_write_i = '1' and addr_is(avs_address_i, REG_ACFG_VALUE_C) then
+            if avs_write_i = '1' and is_off(avs_address_i, REG_ACFG_VALUE_C) then
                 acfg_tbl_addr_o  <= std_logic_vector(acfg_entry);
                 acfg_tbl_value_o <= avs_writedata_i;
             end if;
-            if avs_write_i = '1' and addr_is(avs_address_i, REG_SDO_CMD_C) then
+            if avs_write_i = '1' and is_off(avs_address_i, REG_SDO_CMD_C) then
                 sdo_node_o   <= avs_writedata_i(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
                 sdo_upload_o <= avs_writedata_i(SDO_CMD_UPLOAD_C);
                 sdo_size_o   <= avs_writedata_i(SDO_CMD_SIZE_HI_C downto SDO_CMD_SIZE_LO_C);
@@ -663,16 +638,30 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer: OR of the words whose (disjoint) address matches; registered below
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (all) is
+    read_mux_proc : process (acfg_busy_i, acfg_done, acfg_entry, acfg_fail_abort_i,
+                             acfg_fail_entry_i, acfg_fail_node_i, acfg_fail_sel, acfg_index,
+                             acfg_node, acfg_nodes, acfg_nodes_fail_i, acfg_nodes_ok_i, acfg_ref,
+                             acfg_refused_i, acfg_size, acfg_sub, avs_address_i, bus_off_i, cnt,
+                             ctrl_busy_i, eflg_i, emcy_count_i, emcy_data_i, emcy_lost_i,
+                             emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
+                             init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
+                             node_alive_i, node_autostart, node_bootup_i, node_id, node_last_i,
+                             node_life, node_lost_i, node_mode, node_nmt_i, node_rst_loss,
+                             node_time, node_toggle_i, omni_en, ovf_refused, rec_i,
+                             sdo_abort_code_i, sdo_abort_sent_i, sdo_busy_i, sdo_chan,
+                             sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
+                             sdo_index, sdo_refused_i, sdo_sel, sdo_size_i, sdo_start_i,
+                             sdo_subindex, sdo_timeout, sync_count_i, sync_en, sync_overflow,
+                             sync_period, sync_window, tec_i, time_us_i, tx_pending_i) is
 
-        -- the address is copied to a variable so that process (all) is sensitive to it
+        -- the address, copied to a variable that the put procedure below reads
         variable a : std_logic_vector(7 downto 0);
         variable v : std_logic_vector(31 downto 0);
 
         procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
         begin
 
-            if addr_is(a, n) then
+            if is_off(a, n) then
                 v := v or word;
             end if;
 
@@ -872,7 +861,7 @@ begin
     -- already shows the selected failure (the log RAM registers its read data)
     acfg_fail_sel_o    <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto ACFG_FAIL_SEL_INDEX_LO_C)
                           when avs_write_i = '1'
-                               and addr_is(avs_address_i, REG_ACFG_FAIL_SEL_C) else
+                               and is_off(avs_address_i, REG_ACFG_FAIL_SEL_C) else
                           acfg_fail_sel;
     acfg_start_nodes_o <= acfg_nodes;
     acfg_tbl_node_o    <= acfg_node(6 downto 0);

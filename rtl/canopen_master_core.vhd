@@ -33,6 +33,7 @@ library ieee;
 library work;
     use work.canopen_pkg.all;
     use work.canopen_master_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity canopen_master_core is
     generic (
@@ -302,8 +303,12 @@ architecture rtl of canopen_master_core is
     signal acfg_start_pend  : std_logic;
     signal acfg_run         : std_logic;
     -- sticky: the last ACFG_CTRL.START was refused (list running, or Omni-ID mode)
-    signal acfg_refused    : std_logic;
-    signal acfg_busy       : std_logic;
+    signal acfg_refused : std_logic;
+    signal acfg_busy    : std_logic;
+    -- the configuration list starts (pending start, own SDO channel idle, list not running)
+    signal acfg_go : std_logic;
+    -- the list's NMT start can be queued (no earlier one waiting)
+    signal acfg_nmt_ready  : std_logic;
     signal acfg_done       : std_logic;
     signal acfg_tbl_we     : std_logic;
     signal acfg_tbl_addr   : std_logic_vector(7 downto 0);
@@ -407,6 +412,17 @@ architecture rtl of canopen_master_core is
     -- synchronous window (1007h semantics): open from each SYNC for SYNC_WINDOW_US, 0 = always
     signal window_us   : unsigned(31 downto 0);
     signal window_open : std_logic;
+    -- block inputs gated by the protocol mode (CTRL.OMNI): the PDO engine and the node monitor
+    -- run in CANopen mode, the Omni-ID engine in Omni-ID mode
+    signal mon_enable  : std_logic;
+    signal pe_sync     : std_logic;
+    signal pe_reg_we   : std_logic;
+    signal pe_rx_valid : std_logic;
+    signal pe_tx_ack   : std_logic;
+    signal om_cycle    : std_logic;
+    signal om_reg_we   : std_logic;
+    signal om_rx_valid : std_logic;
+    signal om_tx_ack   : std_logic;
 
     signal ev_node_any    : std_logic;
     signal ev_can_error   : std_logic;
@@ -417,8 +433,15 @@ architecture rtl of canopen_master_core is
     signal cnt_tx_frame   : std_logic;
     signal cnt_tx_error   : std_logic;
     signal cnt_can_error  : std_logic;
-    signal init_done_q    : std_logic;
-    signal init_fail_q    : std_logic;
+    -- counter strobes for the host block that VHDL-93 cannot compute in the port map
+    signal cnt_malformed : std_logic;
+    signal cnt_hb_loss   : std_logic;
+    signal cnt_guard_err : std_logic;
+    -- host view of the error-passive state (EFLG RXEP or TXEP) and of the node events
+    signal can_err_passive : std_logic;
+    signal host_ev_node    : std_logic;
+    signal init_done_q     : std_logic;
+    signal init_fail_q     : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Host input validation (docs/register_map.md, REFUSED bits)
@@ -488,7 +511,7 @@ begin
     -- FSM conditions
     -- ---------------------------------------------------------------------------------------------
     err_pending   <= err_can or err_busoff or err_reinit or err_node;
-    sync_due      <= sync_en and (or sync_period_us) and not sync_loaded
+    sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
     om_preload_ok <= '1' when om_feasible = '1'
                               and sync_timer >= shift_right(unsigned(sync_period_us), 1) else
@@ -503,7 +526,7 @@ begin
     rx_head_ok <= not ctl_rx_ide_i;
 
     -- St4: classification of Receive_Data by function code (CiA 301 predefined connection set)
-    classify_proc : process (all) is
+    classify_proc : process (omni_en, rx_frame, sdo_rx_match) is
 
         variable fc : func_code_t;
 
@@ -905,7 +928,7 @@ begin
     enter_nmt   <= in_nmt_proc and state_change;
 
     -- events and counters for the host block
-    ev_node_any    <= (or ev_lost) or (or ev_toggle) or (or ev_bootup);
+    ev_node_any    <= or_reduce(ev_lost) or or_reduce(ev_toggle) or or_reduce(ev_bootup);
     ev_can_error   <= in_error and (err_can or err_busoff);
     cnt_unexpected <= '1' when (in_rx = '1' and ctl_rx_valid_i = '1' and rx_head_ok = '0')
                                or (in_parse = '1' and cls_pdo = '0' and cls_sdo = '0'
@@ -914,11 +937,14 @@ begin
                                    or (pdo_rx_done = '1' and pdo_rx_unexp = '1')
                                    or (mon_rx_done = '1' and mon_rx_unexp = '1') else
                       '0';
-    ev_frame_error <= cnt_unexpected or (mon_rx_done and mon_rx_malformed);
+    ev_frame_error <= cnt_unexpected or cnt_malformed;
     cnt_rx_frame   <= rx_pop;
-    cnt_tx_frame   <= or ctl_tx_done_i;
-    cnt_tx_error   <= (or ctl_tx_err_i) or (or ctl_tx_drop_i);
+    cnt_tx_frame   <= or_reduce(ctl_tx_done_i);
+    cnt_tx_error   <= or_reduce(ctl_tx_err_i) or or_reduce(ctl_tx_drop_i);
     cnt_can_error  <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
+    cnt_malformed  <= mon_rx_done and mon_rx_malformed;
+    cnt_hb_loss    <= or_reduce(ev_lost);
+    cnt_guard_err  <= or_reduce(ev_toggle);
     ev_init        <= (ctl_init_done_i and not init_done_q)
                       or (ctl_init_fail_i and not init_fail_q);
 
@@ -975,6 +1001,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Services
     -- ---------------------------------------------------------------------------------------------
+    mon_enable <= not omni_en;
+
     sdo_inst : entity work.canopen_sdo_channels
         generic map (
             N_SDO     => N_SDO,
@@ -984,7 +1012,7 @@ begin
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
             tick_ms_i       => tick_ms,
-            enable_i        => not omni_en,
+            enable_i        => mon_enable,
             host_chan_i     => sdo_chan,
             host_req_i      => sdo_req,
             host_upload_i   => sdo_upload,
@@ -1088,6 +1116,11 @@ begin
             rx_malformed_o      => mon_rx_malformed
         );
 
+    pe_sync     <= sync_fire and not omni_en;
+    pe_reg_we   <= pdo_reg_we and not omni_en;
+    pe_rx_valid <= enter_pdo and not omni_en;
+    pe_tx_ack   <= pdo_tx_ack and not omni_en;
+
     pdo_inst : entity work.canopen_pdo_engine
         generic map (
             N_TPDO => N_TPDO,
@@ -1096,15 +1129,15 @@ begin
         port map (
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
-            sync_i          => sync_fire and not omni_en,
+            sync_i          => pe_sync,
             sync_count_i    => std_logic_vector(sync_sent),
             window_open_i   => window_open,
             tick_us_i       => tick_us,
             reg_addr_i      => pdo_reg_addr,
-            reg_we_i        => pdo_reg_we and not omni_en,
+            reg_we_i        => pe_reg_we,
             reg_wdata_i     => pdo_reg_wdata,
             reg_rdata_o     => pe_reg_rdata,
-            rx_valid_i      => enter_pdo and not omni_en,
+            rx_valid_i      => pe_rx_valid,
             rx_id_i         => rx_frame.id,
             rx_rtr_i        => rx_frame.rtr,
             rx_dlc_i        => rx_frame.dlc,
@@ -1117,7 +1150,7 @@ begin
             tx_rtr_o        => pe_tx_rtr,
             tx_dlc_o        => pe_tx_dlc,
             tx_data_o       => pe_tx_data,
-            tx_ack_i        => pdo_tx_ack and not omni_en,
+            tx_ack_i        => pe_tx_ack,
             ev_rx_o         => open,
             ev_len_err_o    => open,
             ev_missed_o     => open,
@@ -1131,6 +1164,11 @@ begin
     omni_en <= omni_req when OMNI_ENABLE else
                '0';
 
+    om_cycle    <= sync_fire and omni_en;
+    om_reg_we   <= pdo_reg_we and omni_en;
+    om_rx_valid <= enter_pdo and omni_en;
+    om_tx_ack   <= pdo_tx_ack and omni_en;
+
     omni_gen : if OMNI_ENABLE generate
 
         omni_inst : entity work.omni_engine
@@ -1143,17 +1181,17 @@ begin
                 enable_i        => omni_en,
                 tick_us_i       => tick_us,
                 period_us_i     => sync_period_us,
-                cycle_i         => sync_fire and omni_en,
+                cycle_i         => om_cycle,
                 cyc_id_o        => om_cyc_id,
                 cyc_dlc_o       => om_cyc_dlc,
                 cyc_data_o      => om_cyc_data,
                 cyc_take_i      => om_cyc_take,
                 feasible_o      => om_feasible,
                 reg_addr_i      => pdo_reg_addr,
-                reg_we_i        => pdo_reg_we and omni_en,
+                reg_we_i        => om_reg_we,
                 reg_wdata_i     => pdo_reg_wdata,
                 reg_rdata_o     => om_reg_rdata,
-                rx_valid_i      => enter_pdo and omni_en,
+                rx_valid_i      => om_rx_valid,
                 rx_id_i         => rx_frame.id,
                 rx_rtr_i        => rx_frame.rtr,
                 rx_dlc_i        => rx_frame.dlc,
@@ -1166,11 +1204,13 @@ begin
                 tx_rtr_o        => om_tx_rtr,
                 tx_dlc_o        => om_tx_dlc,
                 tx_data_o       => om_tx_data,
-                tx_ack_i        => pdo_tx_ack and omni_en,
+                tx_ack_i        => om_tx_ack,
                 ev_o            => om_ev
             );
 
-    else generate
+    end generate omni_gen;
+
+    no_omni_gen : if not OMNI_ENABLE generate
 
         -- CANopen-only build: CTRL.OMNI has no effect, PDO_WIN always shows the PDO engine
         om_reg_rdata <= (others => '0');
@@ -1188,7 +1228,7 @@ begin
         om_feasible  <= '0';
         om_ev        <= '0';
 
-    end generate omni_gen;
+    end generate no_omni_gen;
 
     -- the cycle frame is taken when St11 encapsulates the SYNC-source frame
     om_cyc_take <= '1' when in_encap = '1' and gen_src = 0 and omni_en = '1' else
@@ -1252,6 +1292,9 @@ begin
     acfg_ref_view <= (acfg_busy or acfg_start_pend or omni_en) when acfg_start = '1' else
                      acfg_refused;
 
+    acfg_go        <= acfg_start_pend and sdo_own_idle and not acfg_busy;
+    acfg_nmt_ready <= not acfg_nmt_pending;
+
     acfg_inst : entity work.canopen_autoconfig
         generic map (
             CFG_DEPTH => CFG_DEPTH
@@ -1266,7 +1309,7 @@ begin
             tbl_sub_i       => acfg_tbl_sub,
             tbl_size_i      => acfg_tbl_size,
             tbl_value_i     => acfg_tbl_value,
-            start_i         => acfg_start_pend and sdo_own_idle and not acfg_busy,
+            start_i         => acfg_go,
             start_nodes_i   => acfg_start_nodes,
             busy_o          => acfg_busy,
             done_o          => acfg_done,
@@ -1289,12 +1332,15 @@ begin
             sdo_abort_i     => sdo_own_abort,
             nmt_req_o       => acfg_nmt_req,
             nmt_node_o      => acfg_nmt_node,
-            nmt_ready_i     => not acfg_nmt_pending
+            nmt_ready_i     => acfg_nmt_ready
         );
 
     -- ---------------------------------------------------------------------------------------------
     -- Host registers
     -- ---------------------------------------------------------------------------------------------
+    can_err_passive <= can_eflg(4) or can_eflg(3);
+    host_ev_node    <= ev_node_any or om_ev;
+
     regs_inst : entity work.canopen_host_regs
         generic map (
             MAX_NODES => MAX_NODES,
@@ -1361,7 +1407,7 @@ begin
             ctrl_busy_i              => ctl_busy_i,
             tx_pending_i             => ctl_tx_pending_i,
             bus_off_i                => can_eflg(eflg_txbo_c),
-            err_passive_i            => can_eflg(4) or can_eflg(3),
+            err_passive_i            => can_err_passive,
             nmt_busy_i               => nmt_pending,
             nmt_refused_i            => nmt_ref_view,
             sync_count_i             => std_logic_vector(sync_count),
@@ -1397,7 +1443,7 @@ begin
             acfg_fail_entry_i        => acfg_fail_entry,
             acfg_fail_abort_i        => acfg_fail_abort,
             acfg_fail_sel_o          => acfg_fail_sel,
-            ev_node_i                => ev_node_any or om_ev,
+            ev_node_i                => host_ev_node,
             ev_emcy_i                => ev_emcy,
             ev_sdo_done_i            => sdo_ch_done,
             ev_can_error_i           => ev_can_error,
@@ -1408,12 +1454,12 @@ begin
             cnt_rx_frame_i           => cnt_rx_frame,
             cnt_tx_frame_i           => cnt_tx_frame,
             cnt_unexpected_i         => cnt_unexpected,
-            cnt_malformed_i          => mon_rx_done and mon_rx_malformed,
+            cnt_malformed_i          => cnt_malformed,
             cnt_rx_overflow_i        => ctl_rx_overflow_i,
             cnt_tx_error_i           => cnt_tx_error,
             cnt_sdo_abort_i          => sdo_cnt_abort,
-            cnt_hb_loss_i            => or ev_lost,
-            cnt_guard_err_i          => or ev_toggle,
+            cnt_hb_loss_i            => cnt_hb_loss,
+            cnt_guard_err_i          => cnt_guard_err,
             cnt_can_error_i          => cnt_can_error,
             cnt_emcy_i               => ev_emcy
         );

@@ -108,7 +108,11 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Next-state logic: one arm per state, every transition named after its table row
     -- ---------------------------------------------------------------------------------------------
-    next_state_proc : process (all) is
+    next_state_proc : process (cls_nmt_i, cls_pdo_i, cls_sdo_i, encap_ok_i, err_fatal_i, err_nmt_i,
+                               err_pending_i, frame_ready_i, init_done_i, nmt_done_i, nmt_reply_i,
+                               nmt_req_i, pdo_done_i, pdo_reply_i, pdo_req_i, rx_avail_i,
+                               rx_head_ok_i, sdo_done_i, sdo_reply_i, sdo_req_i, state, sync_due_i,
+                               tx_loaded_i, watchdog_i) is
     begin
 
         next_state <= state;

@@ -387,7 +387,8 @@ begin
 
     -- (an AND/OR reduction: written with an if per slot, GHDL 2.0 --synth takes hours from
     -- MAX_NODES = 20 on)
-    apply_flags_proc : process (all) is
+    apply_flags_proc : process (cfg_autostart_i, cfg_mode_i, rtr_out_q, rx_apply, rx_hit,
+                                rx_state_byte) is
 
         variable auto_v  : std_logic; -- the slot of the frame has autostart
         variable unsol_v : std_logic; -- the slot of the frame guards and has no RTR out
@@ -660,7 +661,7 @@ begin
     -- Transmit arbiter: the first slot with a pending request at or after rr_ptr (round robin);
     -- within a slot reset-node before start before RTR
     -- ---------------------------------------------------------------------------------------------
-    pick_proc : process (all) is
+    pick_proc : process (pend_reset_q, pend_rtr_q, pend_start_q, rr_ptr) is
 
         variable any_v      : std_logic_vector(MAX_NODES - 1 downto 0);
         variable low_v      : slot_t; -- lowest pending slot

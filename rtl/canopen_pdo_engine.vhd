@@ -147,56 +147,7 @@ architecture rtl of canopen_pdo_engine is
     constant config_ok_c : boolean := check_config;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Helpers
-    -- ---------------------------------------------------------------------------------------------
-
-    -- window offset compare without arithmetic (no numeric_std warnings on an undriven bus)
-
-    function is_off (addr : std_logic_vector(5 downto 0); off : natural) return boolean is
-    begin
-
-        return addr = std_logic_vector(to_unsigned(off, 6));
-
-    end function is_off;
-
-    -- the first dlc bytes of a frame, the others zero (DLC 9..15 means 8 bytes)
-
-    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
-        return std_logic_vector is
-
-        variable r : std_logic_vector(63 downto 0);
-
-    begin
-
-        r := v;
-
-        for j in 0 to 7 loop
-
-            if dlc(3) = '0' and unsigned(dlc(2 downto 0)) <= j then
-                r(8 * j + 7 downto 8 * j) := (others => '0');
-            end if;
-
-        end loop;
-
-        return r;
-
-    end function keep_bytes;
-
-    -- 0 or 1
-
-    function bit_int (b : std_logic) return natural is
-    begin
-
-        if b = '1' then
-            return 1;
-        end if;
-
-        return 0;
-
-    end function bit_int;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Types
+    -- Types (helpers is_off, keep_bytes, bit_int: canopen_util_pkg)
     -- ---------------------------------------------------------------------------------------------
 
     type cob_arr_t is array (natural range <>) of std_logic_vector(10 downto 0);
@@ -469,7 +420,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Shared incrementers
     -- ---------------------------------------------------------------------------------------------
-    share_proc : process (all) is
+    share_proc : process (lscan, m_r_idx, mscan, r_len, r_miss, r_seq, t_late, t_seq, txc) is
 
         variable rseq_v : unsigned(15 downto 0);
         variable rlen_v : unsigned(15 downto 0);
@@ -522,7 +473,9 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- RAM ports
     -- ---------------------------------------------------------------------------------------------
-    ram_ctrl_proc : process (all) is
+    ram_ctrl_proc : process (commit_t, m_r_idx, reg_wdata_i, rx_data_q, rx_dlc_q, rx_seq_next,
+                             rx_store, sel_ch, sel_rpdo, stg_view, sync_count_i, t_act, t_pend, txc,
+                             wr_sel) is
 
         variable ch_v   : natural range 0 to 31;
         variable act_v  : std_logic;
@@ -635,7 +588,8 @@ begin
     -- Receive match: lowest valid RPDO with the frame's COB-ID (data frames), lowest valid
     -- TPDO with RTR allowed (remote frames)
     -- ---------------------------------------------------------------------------------------------
-    match_proc : process (all) is
+    match_proc : process (m_r_any, m_r_idx, r_cob, r_dlc, r_valid, rx_dlc_q, rx_id_q, rx_rtr_q,
+                          rx_st, t_cob, t_rtr, t_valid) is
     begin
 
         m_r_any <= '0';
@@ -677,7 +631,10 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Decisions shared by the clocked processes below
     -- ---------------------------------------------------------------------------------------------
-    decide_proc : process (all) is
+    decide_proc : process (m_r_any, m_r_idx, m_t_any, m_t_idx, p, r_elig, reg_wdata_i, rx_len,
+                           rx_rtr_hit, rx_rtr_q, rx_st, rx_store, sync_i, t_elig, t_inh_1st,
+                           t_inh_cnt, tx_ack_i, tx_pol, tx_req, tx_st, txc, win_q, window_open_i,
+                           wr_ctrl) is
 
         variable any_v : std_logic;
 
@@ -1396,9 +1353,12 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (all) is
+    read_mux_proc : process (cnt, r_cob, r_dlc, r_len, r_miss, r_new, r_poll, r_rtr, r_tt, r_valid,
+                             reg_addr_i, rr_q, sel_ch, sel_ref, sel_rpdo, snap_new, snap_ok,
+                             stg_view, t_cob, t_dlc, t_due, t_inh, t_inh_1st, t_inh_cnt, t_late,
+                             t_pend, t_rtr, t_seq, t_tt, t_valid) is
 
-        -- the address is copied to a variable so that process (all) is sensitive to it
+        -- the address, copied to a variable that the put procedure below reads
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);
         variable t : std_logic_vector(31 downto 0);

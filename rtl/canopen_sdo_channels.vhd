@@ -43,6 +43,7 @@ library ieee;
 
 library work;
     use work.canopen_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity canopen_sdo_channels is
     generic (
@@ -223,7 +224,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Request admission: one transfer per SDO server (request or response COB-ID) at a time
     -- ---------------------------------------------------------------------------------------------
-    clash_proc : process (all) is
+    clash_proc : process (c_busy, host_req_cob, host_rsp_cob, own_pend, own_req_cob, own_rsp_cob,
+                          run_req, run_rsp, sel) is
 
         variable hc : std_logic;
         variable oc : std_logic;
@@ -484,7 +486,7 @@ begin
         c_rx_valid(c) <= rx_valid_i and rx_hit(c);
     end generate hit_gen;
 
-    rx_match_o <= or rx_hit;
+    rx_match_o <= or_reduce(rx_hit);
 
     nohit_proc : process (clk_i, rst_n_i) is
     begin
@@ -492,15 +494,15 @@ begin
         if rst_n_i = '0' then
             nohit_pipe <= (others => '0');
         elsif rising_edge(clk_i) then
-            nohit_pipe(0) <= rx_valid_i and not (or rx_hit);
+            nohit_pipe(0) <= rx_valid_i and not or_reduce(rx_hit);
             nohit_pipe(1) <= nohit_pipe(0);
         end if;
 
     end process nohit_proc;
 
-    rx_done_o       <= (or c_rx_done) or nohit_pipe(1);
-    rx_reply_o      <= or (c_rx_done and c_rx_reply);
-    rx_unexpected_o <= (or (c_rx_done and c_rx_unexp)) or nohit_pipe(1);
+    rx_done_o       <= or_reduce(c_rx_done) or nohit_pipe(1);
+    rx_reply_o      <= or_reduce(c_rx_done and c_rx_reply);
+    rx_unexpected_o <= or_reduce(c_rx_done and c_rx_unexp) or nohit_pipe(1);
 
     -- ---------------------------------------------------------------------------------------------
     -- Abort counting: one strobe per aborted transfer, none lost when two end together

@@ -42,6 +42,7 @@ library ieee;
 
 library work;
     use work.canopen_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity canopen_sdo_client is
     generic (
@@ -97,28 +98,10 @@ end entity canopen_sdo_client;
 
 architecture rtl of canopen_sdo_client is
 
-    -- smallest r with 2**r >= n
-
-    function log2_ceil (n : positive) return natural is
-
-        variable r : natural := 0;
-
-    begin
-
-        while 2 ** r < n loop
-
-            r := r + 1;
-
-        end loop;
-
-        return r;
-
-    end function log2_ceil;
-
-    constant addr_w_c : positive := log2_ceil(BUF_BYTES); -- byte address width
-    constant word_w_c : positive := addr_w_c - 2;         -- word (lane RAM) address width
-    constant words_c  : positive := BUF_BYTES / 4;        -- words per lane RAM
-    constant cnt_w_c  : positive := addr_w_c + 1;         -- byte counts 0..BUF_BYTES
+    constant addr_w_c : positive := clog2(BUF_BYTES); -- byte address width
+    constant word_w_c : positive := addr_w_c - 2;     -- word (lane RAM) address width
+    constant words_c  : positive := BUF_BYTES / 4;    -- words per lane RAM
+    constant cnt_w_c  : positive := addr_w_c + 1;     -- byte counts 0..BUF_BYTES
 
     function check_config return boolean is
     begin
@@ -334,7 +317,8 @@ begin
     -- Lane RAM ports: the client's read/write units when active, the host otherwise. Byte a+j
     -- of a 4-byte group at byte address a lives in lane (a+j) mod 4, word (a+j)/4.
     -- ---------------------------------------------------------------------------------------------
-    lane_ports_proc : process (all) is
+    lane_ports_proc : process (buf_addr_i, buf_wdata_i, buf_we_i, fetch_addr, fetch_ph, state,
+                               wr_addr, wr_cnt, wr_data, wr_ph) is
 
         variable ga   : unsigned(addr_w_c - 1 downto 0);
         variable grp  : std_logic_vector(31 downto 0);

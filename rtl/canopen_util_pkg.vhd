@@ -4,11 +4,14 @@
 -- SPDX-License-Identifier: Apache-2.0
 -- =================================================================================================
 -- Module:
---   Small helpers shared by the blocks that own host-visible registers.
+--   Small helpers shared by several blocks (VHDL-93).
 -- Purpose:
---   One definition of the register-word packing used by every read mux (canopen_host_regs,
---   canopen_pdo_engine) and of the saturating event counter (error and statistics counters
---   stop at all ones instead of wrapping, so a host never sees a small count after a flood).
+--   One definition of each helper more than one block needs: the register-word packing and
+--   window-offset compare used by every read mux (canopen_host_regs, canopen_pdo_engine,
+--   omni_engine), the saturating event counters (error and statistics counters stop at all
+--   ones instead of wrapping, so a host never sees a small count after a flood), the OR
+--   reduction (VHDL-93 has no unary `or v`), frame-byte masking by DLC, and the elaboration
+--   arithmetic on generics (ceiling log2, ns to clock cycles, the larger of two naturals).
 -- =================================================================================================
 
 library ieee;
@@ -29,6 +32,40 @@ package canopen_util_pkg is
     -- c + 1, or c when c is already all ones
 
     function sat_inc (c : unsigned) return unsigned;
+
+    -- c + n, or all ones when the sum does not fit
+
+    function sat_add (c : unsigned; n : natural) return unsigned;
+
+    -- '1' when any bit of v is '1' (the VHDL-2008 unary `or v`)
+
+    function or_reduce (v : std_logic_vector) return std_logic;
+
+    -- 1 for '1', 0 otherwise
+
+    function bit_int (b : std_logic) return natural;
+
+    -- addr equals off (a compare without arithmetic: no numeric_std warnings on an undriven bus)
+
+    function is_off (addr : std_logic_vector; off : natural) return boolean;
+
+    -- the first dlc bytes of an 8-byte frame payload (byte j in bits 8j+7..8j), the others
+    -- zero; a DLC of 9..15 means 8 bytes
+
+    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
+        return std_logic_vector;
+
+    -- smallest r with 2**r >= n
+
+    function clog2 (n : positive) return natural;
+
+    -- a time of ns nanoseconds in cycles of a clk_hz clock, rounded up (never shorter)
+
+    function ns_to_cycles (ns : natural; clk_hz : positive) return natural;
+
+    -- the larger of a and b
+
+    function max_nat (a : natural; b : natural) return natural;
 
 end package canopen_util_pkg;
 
@@ -68,5 +105,116 @@ package body canopen_util_pkg is
         return c + 1;
 
     end function sat_inc;
+
+    function sat_add (c : unsigned; n : natural) return unsigned is
+
+        variable s    : unsigned(c'length downto 0);
+        variable all1 : unsigned(c'length - 1 downto 0);
+
+    begin
+
+        s    := resize(c, c'length + 1) + n;
+        all1 := (others => '1');
+
+        if s(c'length) = '1' then
+            return all1;
+        end if;
+
+        return s(c'length - 1 downto 0);
+
+    end function sat_add;
+
+    function or_reduce (v : std_logic_vector) return std_logic is
+
+        variable r : std_logic;
+
+    begin
+
+        r := '0';
+
+        for i in v'range loop
+
+            r := r or v(i);
+
+        end loop;
+
+        return r;
+
+    end function or_reduce;
+
+    function bit_int (b : std_logic) return natural is
+    begin
+
+        if b = '1' then
+            return 1;
+        end if;
+
+        return 0;
+
+    end function bit_int;
+
+    function is_off (addr : std_logic_vector; off : natural) return boolean is
+    begin
+
+        return addr = std_logic_vector(to_unsigned(off, addr'length));
+
+    end function is_off;
+
+    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
+        return std_logic_vector is
+
+        variable r : std_logic_vector(63 downto 0);
+
+    begin
+
+        r := v;
+
+        for j in 0 to 7 loop
+
+            if dlc(3) = '0' and unsigned(dlc(2 downto 0)) <= j then
+                r(8 * j + 7 downto 8 * j) := (others => '0');
+            end if;
+
+        end loop;
+
+        return r;
+
+    end function keep_bytes;
+
+    function clog2 (n : positive) return natural is
+
+        variable r : natural;
+
+    begin
+
+        r := 0;
+
+        while 2 ** r < n loop
+
+            r := r + 1;
+
+        end loop;
+
+        return r;
+
+    end function clog2;
+
+    function ns_to_cycles (ns : natural; clk_hz : positive) return natural is
+    begin
+
+        return (ns * ((clk_hz + 999) / 1000) + 999_999) / 1_000_000;
+
+    end function ns_to_cycles;
+
+    function max_nat (a : natural; b : natural) return natural is
+    begin
+
+        if a > b then
+            return a;
+        end if;
+
+        return b;
+
+    end function max_nat;
 
 end package body canopen_util_pkg;

@@ -1,4 +1,5 @@
-# Compile order of the canopen_master VHDL library (VHDL-2008), read by every flow:
+# Compile order of the canopen_master VHDL library (VHDL-93; it also analyses as VHDL-2008, the
+# standard of the simulations), read by every flow:
 # tb/tblib/runner.py (simulation), scripts/synth.py (ghdl --synth + yosys), scripts/lint.sh.
 # One file per line, relative to this directory; packages first. '#' starts a comment.
 mcp2510_pkg.vhd

@@ -36,6 +36,7 @@ library ieee;
 
 library work;
     use work.mcp2510_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity mcp2510_ctrl is
     generic (
@@ -150,17 +151,10 @@ architecture rtl of mcp2510_ctrl is
 
     end function us_to_cycles;
 
-    function ns_to_cycles (ns : natural) return natural is
-    begin
-
-        return (ns * ((CLK_FREQ_HZ + 999) / 1000) + 999_999) / 1_000_000;
-
-    end function ns_to_cycles;
-
     constant reset_wait_c : positive := us_to_cycles(RESET_WAIT_US);
     constant mode_poll_c  : positive := us_to_cycles(MODE_POLL_US);
-    constant txrts_low_c  : positive := ns_to_cycles(TXRTS_LOW_NS) + 1;
-    constant pin_settle_c : positive := ns_to_cycles(PIN_SETTLE_NS) + 2;
+    constant txrts_low_c  : positive := ns_to_cycles(TXRTS_LOW_NS, CLK_FREQ_HZ) + 1;
+    constant pin_settle_c : positive := ns_to_cycles(PIN_SETTLE_NS, CLK_FREQ_HZ) + 2;
     -- ABAT cannot stop a frame already on the wire: wait one longest frame (160 bits, extended,
     -- 8 bytes, stuffed) plus an error frame and intermission (~20 bits) before deciding
     constant abort_wait_c  : positive := 192 * ((CLK_FREQ_HZ + CAN_BITRATE_BPS - 1)
@@ -435,9 +429,9 @@ architecture rtl of mcp2510_ctrl is
 
     begin
 
-        v(0) := or (st and m0);
-        v(1) := or (st and m1);
-        v(2) := or (st and m2);
+        v(0) := or_reduce(st and m0);
+        v(1) := or_reduce(st and m1);
+        v(2) := or_reduce(st and m2);
         return v;
 
     end function status_bits;
@@ -477,7 +471,8 @@ begin
     -- Command table: the MCP2510 instruction each sequencer state issues (latched by the
     -- executor on cmd_valid, one cycle after the state is entered).
     -- ---------------------------------------------------------------------------------------------
-    cmd_table_proc : process (all) is
+    cmd_table_proc : process (buf_idx, intf_q, rx_buf, state, txp_cache, txp_known, txq_buf,
+                              txq_data, txq_dlc, txq_id, txq_ide, txq_rtr, txq_txp) is
 
         variable wd     : std_logic_vector(111 downto 0);
         variable hdr    : natural range 0 to 1;

@@ -140,7 +140,7 @@ begin
     eng_tx_valid <= '1' when active = '1' and tx_idx < total else '0';
     eng_tx_last  <= '1' when total_known = '1' and tx_idx = total - 1 else '0';
 
-    tx_byte_proc : process (all) is
+    tx_byte_proc : process (addr, hdr_len, instr, tx_idx, wdata) is
 
         variable k : natural range 0 to 13;
 

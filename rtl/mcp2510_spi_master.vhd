@@ -34,6 +34,9 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
+library work;
+    use work.canopen_util_pkg.all;
+
 entity mcp2510_spi_master is
     generic (
         CLK_FREQ_HZ   : positive                  := 50_000_000; -- clk_i frequency [Hz]
@@ -71,37 +74,14 @@ architecture rtl of mcp2510_spi_master is
     -- MCP2510 datasheet (DS21291): maximum SCK frequency at VDD = 4.5 V to 5.5 V.
     constant sclk_max_hz_c : positive := 5_000_000;
 
-    -- Convert a time in ns to clk_i cycles, rounding up (never shorter than asked).
-
-    function ns_to_cycles (ns : natural) return natural is
-
-        constant clk_khz_c : positive := (CLK_FREQ_HZ + 999) / 1000;
-
-    begin
-
-        return (ns * clk_khz_c + 999_999) / 1_000_000;
-
-    end function ns_to_cycles;
-
-    function max_nat (a : natural; b : natural) return natural is
-    begin
-
-        if a > b then
-            return a;
-        end if;
-
-        return b;
-
-    end function max_nat;
-
     -- SCK half period in clk_i cycles: the smallest one that keeps SCK <= SPI_SCLK_HZ.
     constant half_period_c    : positive := (CLK_FREQ_HZ + 2 * SPI_SCLK_HZ - 1)
                                                / (2 * SPI_SCLK_HZ);
     constant sclk_actual_hz_c : positive := CLK_FREQ_HZ / (2 * half_period_c);
-    constant setup_wait_c     : positive := max_nat(max_nat(ns_to_cycles(CS_SETUP_NS),
+    constant setup_wait_c     : positive := max_nat(max_nat(ns_to_cycles(CS_SETUP_NS, CLK_FREQ_HZ),
                                                             half_period_c), 1);
-    constant hold_wait_c      : positive := max_nat(ns_to_cycles(CS_HOLD_NS), 1);
-    constant disable_wait_c   : positive := max_nat(ns_to_cycles(CS_DISABLE_NS), 1);
+    constant hold_wait_c      : positive := max_nat(ns_to_cycles(CS_HOLD_NS, CLK_FREQ_HZ), 1);
+    constant disable_wait_c   : positive := max_nat(ns_to_cycles(CS_DISABLE_NS, CLK_FREQ_HZ), 1);
     constant cnt_max_c        : positive := max_nat(max_nat(setup_wait_c, hold_wait_c),
                                                     max_nat(disable_wait_c, half_period_c));
 

@@ -235,38 +235,8 @@ architecture rtl of omni_engine is
     );
 
     -- ---------------------------------------------------------------------------------------------
-    -- Helpers
+    -- Helpers (is_off, keep_bytes, bit_int, sat_add: canopen_util_pkg)
     -- ---------------------------------------------------------------------------------------------
-
-    function is_off (addr : std_logic_vector(5 downto 0); off : natural) return boolean is
-    begin
-
-        return addr = std_logic_vector(to_unsigned(off, 6));
-
-    end function is_off;
-
-    -- the first dlc bytes of a frame, the others zero (DLC 9..15 means 8 bytes)
-
-    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
-        return std_logic_vector is
-
-        variable r : std_logic_vector(63 downto 0);
-
-    begin
-
-        r := v;
-
-        for j in 0 to 7 loop
-
-            if dlc(3) = '0' and unsigned(dlc(2 downto 0)) <= j then
-                r(8 * j + 7 downto 8 * j) := (others => '0');
-            end if;
-
-        end loop;
-
-        return r;
-
-    end function keep_bytes;
 
     -- broadcast data (A1): [sender]? then the axes, highest first; 1 byte (low 8 bits) per axis,
     -- or 2 bytes big-endian per axis (w2 = '1')
@@ -311,19 +281,6 @@ architecture rtl of omni_engine is
 
     end function bc_data;
 
-    -- 0 or 1
-
-    function bit_int (b : std_logic) return natural is
-    begin
-
-        if b = '1' then
-            return 1;
-        end if;
-
-        return 0;
-
-    end function bit_int;
-
     -- number of '1' bits
 
     function ones (v : std_logic_vector) return natural is
@@ -345,24 +302,6 @@ architecture rtl of omni_engine is
         return c;
 
     end function ones;
-
-    -- c + n, saturating at all ones
-
-    function sat_add (c : unsigned(31 downto 0); n : natural) return unsigned is
-
-        variable s : unsigned(32 downto 0);
-
-    begin
-
-        s := resize(c, 33) + n;
-
-        if s(32) = '1' then
-            return unsigned'(31 downto 0 => '1');
-        end if;
-
-        return s(31 downto 0);
-
-    end function sat_add;
 
     -- worst-case bits of a frame with DLC d (9..15 count as 8)
 
@@ -599,7 +538,8 @@ begin
     -- Cycle frame (a function of registers only: what the core copies at cyc_take_i is what the
     -- engine records at the same edge)
     -- ---------------------------------------------------------------------------------------------
-    frame_proc : process (all) is
+    frame_proc : process (act_set, bc4x2, cur_set, kmod, master_id, n_axes, pend_set, pending,
+                          sender, sync_mode) is
 
         variable n_v : natural range 0 to 15;
 
@@ -644,7 +584,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Transmit priority (A11, docs): stop all, NMT, broadcast after SYNC, query, reply, parameter
     -- ---------------------------------------------------------------------------------------------
-    pick_proc : process (all) is
+    pick_proc : process (bc_due, enable_i, nmt_due, par_due, query_due, reply_due, stop_due,
+                         tx_st) is
     begin
 
         start   <= '0';
@@ -677,7 +618,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Receive classification
     -- ---------------------------------------------------------------------------------------------
-    match_proc : process (all) is
+    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_data_q, rx_dlc_q,
+                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_fc, s_len, s_node, s_seq, s_valid) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
@@ -1481,7 +1423,13 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (all) is
+    read_mux_proc : process (alive, bc4x2, cfg_err, cnt, cyc_cnt, enable_i, f_bits, feasible, fr_q,
+                             k_reg, m_reg, master_id, missing, n_axes, nmt_due, par_dlc, par_due,
+                             par_hi, par_lo, par_node, par_type, pending, pmb_any, pmb_dlc, pmb_hi,
+                             pmb_lo, pmb_new, pmb_ovr, pmb_sender, pmb_type, q_open, qwin_reg,
+                             reg_addr_i, s_dlc, s_fc, s_len, s_miss, s_new, s_node, s_valid,
+                             sel_slot, sender, snap_new, snap_ok, staging, stop_due, stop_miss,
+                             sync_mode) is
 
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);

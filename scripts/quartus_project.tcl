@@ -11,7 +11,8 @@
 #   quartus_sh --flow compile <project_dir>/canopen_master       (then: compile it)
 #
 # The VHDL files and their order come from rtl/files.f (parsed here: one file per line, '#'
-# starts a comment), all in library canopen_master, as VHDL-2008. Constraints:
+# starts a comment), all in library canopen_master, as VHDL-93 (VHDL_1993: the RTL keeps to
+# VHDL-93 because the Quartus versions for Cyclone III read VHDL-2008 only in part). Constraints:
 # constraints/ep3c80_reference.sdc (clock, I/O delays, false paths on the top's ports) and
 # constraints/ep3c80_reference_pins.tcl (PLACEHOLDER pin locations, see that file).
 # Paths are written relative to the project directory, so the project can be moved with the
@@ -92,7 +93,7 @@ if {[project_exists $project_name]} {
 set_global_assignment -name FAMILY $family
 set_global_assignment -name DEVICE $device
 set_global_assignment -name TOP_LEVEL_ENTITY $top_entity
-set_global_assignment -name VHDL_INPUT_VERSION VHDL_2008
+set_global_assignment -name VHDL_INPUT_VERSION VHDL_1993
 set_global_assignment -name PROJECT_OUTPUT_DIRECTORY output_files
 
 # a re-run must not keep files that left rtl/files.f

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Synthesis checks and resource estimates for every entity in ``rtl/files.f``.
 
-``--check``  (``make test``): ``ghdl --synth`` of every entity with its default generics and of
+``--check``  (``make test``): ``ghdl -a --std=08`` of every RTL file (the simulations' standard),
+             then ``ghdl -a`` and ``ghdl --synth`` with ``--std=93c`` (``STD``: the RTL is
+             VHDL-93) of every entity with its default generics and of
              the builds in ``VARIANTS`` (the CANopen-only top, the channel-count variants),
              producing the same Verilog netlist as ``make synth`` (then discarded). GHDL rejects
              latches (no ``--latches``), ``wait for`` and other non-synthesizable code, and
@@ -39,8 +41,11 @@ RTL = ROOT / "rtl"
 OUT = ROOT / "build" / "synth"
 LIB = "canopen_master"
 ENV = dict(os.environ, GHDL_BACKEND=os.environ.get("GHDL_BACKEND", "llvm"))
-#: VHDL standard of every ghdl call (analysis, --synth, the FuseSoC generator)
-STD = "08"
+#: VHDL standard of the RTL, of every ghdl --synth and of the FuseSoC generator (the Quartus
+#: versions for Cyclone III read VHDL-2008 only in part)
+STD = "93c"
+#: standard of the simulations (tb/tblib/runner.py): the RTL must analyse under it too
+SIM_STD = "08"
 #: yosys synth_intel family: Cyclone IV E (the LE and M9K of Cyclone III)
 FAMILY = "cycloneive"
 
@@ -93,11 +98,11 @@ def run(cmd: list[str], cwd: Path, **kw) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=cwd, env=ENV, text=True, capture_output=True, **kw)
 
 
-def analyse(work: Path) -> None:
+def analyse(work: Path, std: str = STD) -> None:
     work.mkdir(parents=True, exist_ok=True)
-    res = run(["ghdl", "-a", f"--std={STD}", f"--work={LIB}", *map(str, sources())], work)
+    res = run(["ghdl", "-a", f"--std={std}", f"--work={LIB}", *map(str, sources())], work)
     if res.returncode:
-        sys.exit(f"ghdl -a failed:\n{res.stdout}{res.stderr}")
+        sys.exit(f"ghdl -a --std={std} failed:\n{res.stdout}{res.stderr}")
 
 
 def ghdl_synth(entity: str, generics: dict[str, str], work: Path) -> subprocess.CompletedProcess:
@@ -137,6 +142,8 @@ def targets(names: list[str]) -> list[tuple[str, str, dict[str, str]]]:
 
 
 def check(names: list[str]) -> int:
+    analyse(OUT / "check08", SIM_STD)
+    print(f"ghdl -a --std={SIM_STD} of rtl/files.f       ok")
     work = OUT / "check"
     analyse(work)
     failed = 0

@@ -14,7 +14,7 @@
   C/H file of ``sw/`` is listed, every ``#include "..."`` resolves through the include
   directories it declares.
 * ``scripts/quartus_project.tcl``: run in ``tclsh`` with stub Quartus commands on the real
-  repository: device, top, VHDL-2008, the VHDL files of ``rtl/files.f`` in order (paths
+  repository: device, top, VHDL-93, the VHDL files of ``rtl/files.f`` in order (paths
   resolved from the project directory), the SDC, one placeholder location per MCP2510/clock/reset
   pin (valid, distinct F484 ball names) with an I/O standard.
 * ``ip/reference_system/nios2_canopen_qsys.tcl``: run in ``tclsh`` with stub qsys-script
@@ -95,8 +95,8 @@ def core_problems(core: dict, order: list[Path], root: Path = ROOT) -> list[str]
     expected = [p.relative_to(root).as_posix() for p in order]
     if listed != expected:
         problems.append(f"rtl fileset lists {listed}, rtl/files.f has {expected}")
-    if rtl.get("file_type") != "vhdlSource-2008":
-        problems.append(f"rtl file_type {rtl.get('file_type')}, expected vhdlSource-2008")
+    if rtl.get("file_type") != "vhdlSource-93":
+        problems.append(f"rtl file_type {rtl.get('file_type')}, expected vhdlSource-93")
     if rtl.get("logical_name") != "canopen_master":
         problems.append(f"rtl logical_name {rtl.get('logical_name')}, expected canopen_master")
     for name, fs in core.get("filesets", {}).items():
@@ -526,10 +526,14 @@ def quartus_problems(calls: list[list[str]], project_dir: Path, order: list[Path
     glob = [c for c in calls if c[0] == "set_global_assignment"]
     single = {_option(c, "-name"): _value(c) for c in glob}
     for name, value in (("FAMILY", FAMILY), ("DEVICE", DEVICE),
-                        ("TOP_LEVEL_ENTITY", "canopen_master_top"),
-                        ("VHDL_INPUT_VERSION", "VHDL_2008")):
+                        ("TOP_LEVEL_ENTITY", "canopen_master_top")):
         if single.get(name) != value:
             problems.append(f"{name} = {single.get(name)}, expected {value}")
+    # VHDL-93 RTL: VHDL_1993, or no assignment (Quartus' default, what edalize writes when no
+    # file is vhdlSource-2008)
+    if single.get("VHDL_INPUT_VERSION", "VHDL_1993") != "VHDL_1993":
+        problems.append(f"VHDL_INPUT_VERSION = {single.get('VHDL_INPUT_VERSION')}, "
+                        "expected VHDL_1993")
     vhdl = [c for c in glob if _option(c, "-name") == "VHDL_FILE"]
     files = [(project_dir / _value(c)).resolve() for c in vhdl]
     if files != [p.resolve() for p in order]:
@@ -598,6 +602,9 @@ def test_quartus_checker_can_fail(tmp_path):
     pins = copy / "constraints" / "ep3c80_reference_pins.tcl"
     text = _sub_once(pins.read_text(), r"PIN_AB16 -to spi_cs_n_o", "PIN_AB15 -to spi_cs_n_o")
     text = _sub_once(text, r"PIN_AA16 -to spi_sck_o", "PIN_AC16 -to spi_sck_o")
+    script = copy / "scripts" / "quartus_project.tcl"
+    script.write_text(_sub_once(script.read_text(), r"VHDL_INPUT_VERSION VHDL_1993",
+                                "VHDL_INPUT_VERSION VHDL_2008"))
     pins.write_text(_sub_once(text, r"^set_location_assignment PIN_AB8  -to mcp_reset_n_o\n", ""))
     project = tmp_path / "qproj"
     calls = _run_tcl(tmp_path, QUARTUS_STUBS, copy / "scripts" / "quartus_project.tcl",
@@ -608,6 +615,7 @@ def test_quartus_checker_can_fail(tmp_path):
     assert "ball PIN_AB15 used twice" in problems, problems
     assert "spi_sck_o: PIN_AC16 is not an F484 ball name" in problems, problems
     assert "no location for mcp_reset_n_o" in problems, problems
+    assert "VHDL_INPUT_VERSION = VHDL_2008, expected VHDL_1993" in problems, problems
     files_f.write_text(files_f.read_text() + "no_such_file.vhd\n")
     with pytest.raises(RuntimeError, match="rtl/files.f lists no_such_file.vhd"):
         _run_tcl(tmp_path, QUARTUS_STUBS, copy / "scripts" / "quartus_project.tcl", str(project))
