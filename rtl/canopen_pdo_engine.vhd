@@ -89,8 +89,37 @@ architecture rtl of canopen_pdo_engine is
     -- ---------------------------------------------------------------------------------------------
     -- Configuration
     -- ---------------------------------------------------------------------------------------------
-    constant n_items_c : positive := N_TPDO + N_RPDO; -- scan items: TPDOs, then RPDO polls
-    constant rram_w_c  : positive := 64 + 16 + 8;     -- RPDO RAM word: data, seq, SYNC count
+    -- items: TPDO k = item k, RPDO k = item N_TPDO + k (index of the configuration and state
+    -- RAMs and of the scan pointer)
+    constant n_items_c : positive := N_TPDO + N_RPDO;
+    constant rram_w_c  : positive := 64 + 16 + 8; -- RPDO RAM word: data, seq, SYNC count
+
+    -- configuration RAM word: COB-ID, RTR, valid, DLC, TT, inhibit time [100 us]
+    constant cw_cob_lo_c : natural := 0;
+    constant cw_cob_hi_c : natural := 10;
+    constant cw_rtr_c    : natural := 11;
+    constant cw_valid_c  : natural := 12;
+    constant cw_dlc_lo_c : natural := 13;
+    constant cw_dlc_hi_c : natural := 16;
+    constant cw_tt_lo_c  : natural := 17;
+    constant cw_tt_hi_c  : natural := 24;
+    constant cw_inh_lo_c : natural := 25;
+    constant cw_inh_hi_c : natural := 40;
+    constant cw_w_c      : natural := 41;
+    -- state RAM word: SEQ, counter 1 (TPDO LATE, RPDO LEN_ERR), counter 2 (TPDO inhibit ticks
+    -- left, RPDO MISSED), SYNCs left in the interval, flag 1 (TPDO first inhibit tick to come,
+    -- RPDO missed-cycle monitor armed), flag 2 (RPDO PDO stored in the interval)
+    constant sw_seq_lo_c  : natural := 0;
+    constant sw_seq_hi_c  : natural := 15;
+    constant sw_c1_lo_c   : natural := 16;
+    constant sw_c1_hi_c   : natural := 31;
+    constant sw_c2_lo_c   : natural := 32;
+    constant sw_c2_hi_c   : natural := 47;
+    constant sw_left_lo_c : natural := 48;
+    constant sw_left_hi_c : natural := 55;
+    constant sw_f1_c      : natural := 56;
+    constant sw_f2_c      : natural := 57;
+    constant sw_w_c       : natural := 58;
 
     -- CiA 301 transmission types (7.2.2.3.2; not in canopen_pkg)
     constant tt_sync_max_c  : natural := 240; -- 1..240: every n-th SYNC
@@ -125,6 +154,23 @@ architecture rtl of canopen_pdo_engine is
     constant cnt_unexp_c : natural := 6;
     constant cnt_num_c   : natural := 7;
 
+    -- the larger of two naturals (VHDL-93 has no maximum)
+
+    function larger (a : natural; b : natural) return natural is
+    begin
+
+        if a > b then
+            return a;
+        end if;
+
+        return b;
+
+    end function larger;
+
+    -- bound of rx_valid_i -> rx_done_o [cycles] (docs/canopen_pdo_engine.md): a remote frame
+    -- N_TPDO + 7, a data frame N_RPDO + 2
+    constant rx_bound_c : positive := larger(N_TPDO + 7, N_RPDO + 2);
+
     function check_config return boolean is
     begin
 
@@ -136,9 +182,13 @@ architecture rtl of canopen_pdo_engine is
             severity failure;
         assert false
             report "canopen_pdo_engine: " & integer'image(N_TPDO) & " TPDO + "
-                   & integer'image(N_RPDO) & " RPDO channels; TPDO data RAM 2 x "
-                   & integer'image(2 * N_TPDO) & " x 64 bits, RPDO RAM "
-                   & integer'image(N_RPDO) & " x " & integer'image(rram_w_c) & " bits"
+                   & integer'image(N_RPDO) & " RPDO channels; RAMs: configuration 2 x "
+                   & integer'image(n_items_c) & " x " & integer'image(cw_w_c) & ", state 2 x "
+                   & integer'image(n_items_c) & " x " & integer'image(sw_w_c)
+                   & ", TPDO data 2 x " & integer'image(2 * N_TPDO) & " x 64, RPDO data "
+                   & integer'image(N_RPDO) & " x " & integer'image(rram_w_c)
+                   & " bits; rx_valid_i -> rx_done_o <= "
+                   & integer'image(rx_bound_c) & " cycles"
             severity note;
         return true;
 
@@ -195,109 +245,117 @@ architecture rtl of canopen_pdo_engine is
 
     end function bit_int;
 
+    -- '1' if any bit is set (VHDL-93: no reduction operators)
+
+    function any_set (v : std_logic_vector) return std_logic is
+    begin
+
+        if unsigned(v) = 0 then
+            return '0';
+        end if;
+
+        return '1';
+
+    end function any_set;
+
     -- ---------------------------------------------------------------------------------------------
     -- Types
     -- ---------------------------------------------------------------------------------------------
 
-    type cob_arr_t is array (natural range <>) of std_logic_vector(10 downto 0);
-
-    type nib_arr_t is array (natural range <>) of std_logic_vector(3 downto 0);
-
-    type u8_arr_t is array (natural range <>) of unsigned(7 downto 0);
-
-    type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
-
     type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
+
+    type cram_t is array (0 to n_items_c - 1) of std_logic_vector(cw_w_c - 1 downto 0);
+
+    type sram_t is array (0 to n_items_c - 1) of std_logic_vector(sw_w_c - 1 downto 0);
 
     type tram_t is array (0 to 2 * N_TPDO - 1) of std_logic_vector(63 downto 0);
 
     type rram_t is array (0 to N_RPDO - 1) of std_logic_vector(rram_w_c - 1 downto 0);
 
     type tx_state_t is (
-        S_IDLE,  -- scan pointer looks at one item per cycle
-        S_READ,  -- TPDO data being read from the active bank
-        S_LATCH, -- TPDO data at the RAM output: frame registers loaded
-        S_WAIT   -- tx_req_o = 1 until tx_ack_i
+        S_IDLE, -- scan pointer looks at one item per cycle
+        S_READ, -- frame being read (engine operation OP_TXRD)
+        S_WAIT, -- tx_req_o = 1 until tx_ack_i
+        S_ACK   -- TPDO frame taken: SEQ and inhibit time being updated (OP_TXACK)
     );
 
     type rx_state_t is (
         S_RX_IDLE,  -- waiting for rx_valid_i
-        S_RX_MATCH, -- frame registered, matched against the channels
+        S_RX_WAIT,  -- frame registered, waiting for the engine
+        S_RX_MATCH, -- the engine compares the frame with one channel per cycle
         S_RX_REPLY  -- RTR for a TPDO: waiting until its reply is on tx_req_o
     );
 
-    -- ---------------------------------------------------------------------------------------------
-    -- TPDO channels
-    -- ---------------------------------------------------------------------------------------------
-    -- configuration: COB-ID, valid, RTR allowed, DLC, TT, inhibit time [100 us]
-    signal t_cob   : cob_arr_t(0 to N_TPDO - 1);
-    signal t_valid : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_rtr   : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_dlc   : nib_arr_t(0 to N_TPDO - 1);
-    signal t_tt    : u8_arr_t(0 to N_TPDO - 1);
-    signal t_inh   : u16_arr_t(0 to N_TPDO - 1);
-    -- active data bank, commit waiting for the SYNC, frame due, TT 0 marked for the next SYNC
-    signal t_act : std_logic_vector(N_TPDO - 1 downto 0);
-    -- the active bank holds committed data (else the data read as 0: RAM words are never
-    -- shown before they were written, after power-up or a reset)
-    signal t_ok   : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_pend : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_due  : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_new  : std_logic_vector(N_TPDO - 1 downto 0);
-    -- SYNCs left until the next frame (TT 1..240), frames taken, late count
-    signal t_left : u8_arr_t(0 to N_TPDO - 1);
-    signal t_seq  : u16_arr_t(0 to N_TPDO - 1);
-    signal t_late : u16_arr_t(0 to N_TPDO - 1);
-    -- inhibit time left [100 us ticks] after the first tick (t_inh_1st: the first, partial
-    -- tick is still to come); late event waiting for its ev_late_o strobe
-    signal t_inh_cnt : u16_arr_t(0 to N_TPDO - 1);
-    signal t_inh_1st : std_logic_vector(N_TPDO - 1 downto 0);
-    signal t_late_ev : std_logic_vector(N_TPDO - 1 downto 0);
-    -- the channel may start a frame now
-    signal t_elig : std_logic_vector(N_TPDO - 1 downto 0);
+    type eng_state_t is (
+        E_IDLE,  -- picks the next operation, its RAM read address is applied
+        E_EXEC,  -- RAM words of the item at the outputs: computed, written back at the edge
+        E_MATCH  -- receive match: one item per cycle until a match or the last item
+    );
+
+    type eng_op_t is (
+        OP_NONE,  -- nothing to do
+        OP_RX,    -- receive match and store / length error / RTR
+        OP_TXACK, -- TPDO frame taken: SEQ, inhibit time
+        OP_TXRD,  -- frame being built: COB-ID, DLC from the configuration RAM
+        OP_SWEEP  -- housekeeping visit: SYNC, inhibit tick, late events
+    );
 
     -- ---------------------------------------------------------------------------------------------
-    -- RPDO channels
+    -- Per-channel flags (flip-flops: they are bitmaps of the register map or must change at the
+    -- very edge of a SYNC, commit or frame start)
     -- ---------------------------------------------------------------------------------------------
-    -- configuration: COB-ID, valid, RTR poll, expected DLC, TT
-    signal r_cob   : cob_arr_t(0 to N_RPDO - 1);
-    signal r_valid : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_rtr   : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_dlc   : nib_arr_t(0 to N_RPDO - 1);
-    signal r_tt    : u8_arr_t(0 to N_RPDO - 1);
-    -- data not acknowledged, PDOs stored, length errors, missed cycles
-    signal r_new : std_logic_vector(N_RPDO - 1 downto 0);
-    -- a PDO was stored since the reset (else the receive buffer reads as 0)
+    -- TPDO: synchronous type (valid, TT 0..240), active bank, active bank holds committed data,
+    -- commit waiting for the SYNC, frame due, TT 0 marked for the next SYNC, TT 0 mark taken by
+    -- the last SYNC, inhibit time running, late event (window end) waiting for its count
+    signal t_sync  : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_act   : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_ok    : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_pend  : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_due   : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_new   : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_ns    : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_inh   : std_logic_vector(N_TPDO - 1 downto 0);
+    signal t_latev : std_logic_vector(N_TPDO - 1 downto 0);
+    -- RPDO: data not acknowledged, a PDO was stored since the reset, RTR poll due, PDO stored
+    -- since the last SYNC, PDO stored in the SYNC period the pending SYNC visit closes
+    signal r_new  : std_logic_vector(N_RPDO - 1 downto 0);
     signal r_ok   : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_seq  : u16_arr_t(0 to N_RPDO - 1);
-    signal r_len  : u16_arr_t(0 to N_RPDO - 1);
-    signal r_miss : u16_arr_t(0 to N_RPDO - 1);
-    -- missed-cycle monitor: armed by the first PDO, PDO seen in this interval, SYNCs left in
-    -- the interval
-    signal r_armed : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_got   : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_left  : u8_arr_t(0 to N_RPDO - 1);
-    -- RTR poll due; missed event waiting for its ev_missed_o strobe
-    signal r_poll    : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_miss_ev : std_logic_vector(N_RPDO - 1 downto 0);
-    -- the poll may start now
-    signal r_elig : std_logic_vector(N_RPDO - 1 downto 0);
+    signal r_poll : std_logic_vector(N_RPDO - 1 downto 0);
+    signal r_got  : std_logic_vector(N_RPDO - 1 downto 0);
+    signal r_gs   : std_logic_vector(N_RPDO - 1 downto 0);
+    -- every item: SYNC visit pending, configuration written since the last state write (the
+    -- SYNC/monitor fields of the state word read as reset), counters cleared since the last
+    -- state write (LATE / LEN_ERR / MISSED read as 0)
+    signal i_sp    : std_logic_vector(n_items_c - 1 downto 0);
+    signal i_cfgn  : std_logic_vector(n_items_c - 1 downto 0);
+    signal i_stale : std_logic_vector(n_items_c - 1 downto 0);
+    -- every item: the configuration word was written since the reset (else it reads as 0),
+    -- the state word was not written since the reset (it reads as 0); RAMs have no reset
+    signal i_cv    : std_logic_vector(n_items_c - 1 downto 0);
+    signal i_fresh : std_logic_vector(n_items_c - 1 downto 0);
+    -- the item may start a frame now
+    signal i_elig : std_logic_vector(n_items_c - 1 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
-    -- Shared incrementers of the per-channel counters (their events come one at a time: the
-    -- receiver's frame, the transmitter's frame, the late / missed event scan pointers)
+    -- RAMs (synchronous read, no reset)
     -- ---------------------------------------------------------------------------------------------
-    signal rx_seq_next : unsigned(15 downto 0); -- SEQ + 1 of the matched RPDO
-    signal rx_len_next : unsigned(15 downto 0); -- LEN_ERR + 1 of the matched RPDO (saturating)
-    signal tx_seq_next : unsigned(15 downto 0); -- SEQ + 1 of the TPDO being sent
-    signal late_next   : unsigned(15 downto 0); -- LATE + 1 of TPDO lscan (saturating)
-    signal miss_next   : unsigned(15 downto 0); -- MISSED + 1 of RPDO mscan (saturating)
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Data RAMs (synchronous read)
-    -- ---------------------------------------------------------------------------------------------
-    -- TPDO data, word 2k + b = bank b of channel k; copy A is read by the transmitter, copy B by
-    -- the host (both written by the commit), so neither read ever waits
+    -- configuration: copy A read by the engine, copy B by the host select (written by the host)
+    signal cram_a : cram_t;
+    signal cram_b : cram_t;
+    signal c_we   : std_logic;
+    signal c_wa   : natural range 0 to n_items_c - 1;
+    signal c_wd   : std_logic_vector(cw_w_c - 1 downto 0);
+    signal ca_q   : std_logic_vector(cw_w_c - 1 downto 0);
+    signal cb_q   : std_logic_vector(cw_w_c - 1 downto 0);
+    -- state: copy A read by the engine, copy B by the host select (written by the engine)
+    signal sram_a : sram_t;
+    signal sram_b : sram_t;
+    signal sa_q   : std_logic_vector(sw_w_c - 1 downto 0);
+    signal sb_q   : std_logic_vector(sw_w_c - 1 downto 0);
+    -- host select read address of the copies B (the item being selected, else the selected one)
+    signal hb_ra : natural range 0 to n_items_c - 1;
+    -- TPDO data, word 2k + b = bank b of channel k; copy A read by the transmitter, copy B by
+    -- the host (both written by the commit)
     signal tram_a : tram_t;
     signal tram_b : tram_t;
     signal t_we   : std_logic;
@@ -319,6 +377,49 @@ architecture rtl of canopen_pdo_engine is
     signal rr_q  : std_logic_vector(rram_w_c - 1 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
+    -- Shared engine (one read-modify-write of one item's state word at a time)
+    -- ---------------------------------------------------------------------------------------------
+    signal e_st   : eng_state_t;
+    signal e_op   : eng_op_t;
+    signal e_item : natural range 0 to n_items_c - 1;
+    -- last item of the receive match (TPDOs for a remote frame, RPDOs for a data frame)
+    signal e_last : natural range 0 to n_items_c - 1;
+    -- the host wrote the configuration of the item at the edge that read it
+    signal e_hit : std_logic;
+    -- operation chosen in E_IDLE and the engine's read address
+    signal e_gop : eng_op_t;
+    signal e_ra  : natural range 0 to n_items_c - 1;
+    -- the frame the receive match would start with is a remote frame
+    signal rx_rtr_now : std_logic;
+    -- results of the item at the RAM outputs (E_EXEC / E_MATCH)
+    signal x_we    : std_logic;                           -- state word written back
+    signal x_wd    : std_logic_vector(sw_w_c - 1 downto 0); -- the word
+    signal x_visit : std_logic;                           -- sweep visit of e_item
+    signal x_due   : std_logic;                           -- TPDO: DUE after the SYNC visit
+    signal x_late  : std_logic;                           -- TPDO: a late frame counted
+    signal x_inhc  : std_logic;                           -- TPDO: inhibit time over
+    signal x_inhs  : std_logic;                           -- TPDO: inhibit time started
+    signal x_poll  : std_logic;                           -- RPDO: RTR poll due
+    signal x_miss  : std_logic;                           -- RPDO: a missed cycle counted
+    signal x_match : std_logic;                           -- E_MATCH: the item takes the frame
+    signal x_store : std_logic;                           -- ... a data frame, stored
+    signal x_len   : std_logic;                           -- ... a data frame, wrong DLC
+    signal x_rtr   : std_logic;                           -- ... a remote frame for a TPDO
+    signal x_mdone : std_logic;                           -- E_MATCH ends (match or last item)
+    signal x_tseq  : std_logic_vector(15 downto 0);       -- SEQ written (store)
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Housekeeping sweep
+    -- ---------------------------------------------------------------------------------------------
+    -- a sweep runs, its next item, it applies an inhibit tick; requests for the next sweep
+    signal sw_busy  : std_logic;
+    signal sw_ptr   : natural range 0 to n_items_c - 1;
+    signal sw_tick  : std_logic;
+    signal sync_req : std_logic;
+    signal tick_req : std_logic;
+    signal late_req : std_logic;
+
+    -- ---------------------------------------------------------------------------------------------
     -- Host window
     -- ---------------------------------------------------------------------------------------------
     -- writes decoded by window offset
@@ -330,16 +431,30 @@ architecture rtl of canopen_pdo_engine is
     signal wr_hi    : std_logic;
     signal wr_cmd   : std_logic;
     signal wr_rxnew : std_logic;
-    -- selected channel and kind (1 = RPDO); the selected channel exists
+    -- selected channel and kind (1 = RPDO), its item; the selected channel exists
     signal sel_ch   : natural range 0 to 31;
     signal sel_rpdo : std_logic;
+    signal sel_item : natural range 0 to n_items_c - 1;
     signal sel_t_ok : std_logic;
     signal sel_r_ok : std_logic;
+    -- the channel named by a PDO_SEL write exists; its item
+    signal new_ok   : std_logic;
+    signal new_item : natural range 0 to n_items_c - 1;
     -- host input validation: the PDO_CFG write data is allowed (DLC 0..8, TT not 241..251);
     -- a PDO_CFG write is carried out; the last PDO_SEL / PDO_CFG write was refused
     signal cfg_ok    : std_logic;
     signal wr_cfg_ok : std_logic;
     signal sel_ref   : std_logic;
+    -- shadow of the selected channel's configuration and counters: loaded from the copies B
+    -- in the cycle after a select (sh_load), then written through; as the host sees them
+    signal sh_cfg   : std_logic_vector(cw_w_c - 1 downto 0);
+    signal sh_st    : std_logic_vector(47 downto 0);
+    signal sh_load  : std_logic;
+    signal shs_load : std_logic;
+    signal shc_view : std_logic_vector(cw_w_c - 1 downto 0);
+    signal shs_view : std_logic_vector(47 downto 0);
+    -- TT of the selected channel
+    signal sel_tt : unsigned(7 downto 0);
     -- TPDO staging register; '1' in the cycle after a TPDO select (tb_q holds the channel's
     -- latest committed data); staging as the host sees it
     signal staging  : std_logic_vector(63 downto 0);
@@ -352,8 +467,12 @@ architecture rtl of canopen_pdo_engine is
     signal stg_zero : std_logic;
     -- a commit of the selected TPDO in this cycle
     signal commit_t : std_logic;
-    -- read multiplexer and its register
-    signal rd_mux  : std_logic_vector(31 downto 0);
+    -- flags of the selected channel: TPDO PENDING, DUE, INHIBITED; RPDO POLL_DUE
+    signal sel_pend : std_logic;
+    signal sel_due  : std_logic;
+    signal sel_inh  : std_logic;
+    signal sel_poll : std_logic;
+    -- read data register
     signal rdata_q : std_logic_vector(31 downto 0);
     -- global counters (PDO_CNT_*)
     signal cnt : cnt_arr_t;
@@ -364,9 +483,8 @@ architecture rtl of canopen_pdo_engine is
     signal tx_st : tx_state_t;
     -- scan pointer: items 0 .. N_TPDO - 1 are TPDOs, N_TPDO .. are RPDO polls
     signal p : natural range 0 to n_items_c - 1;
-    -- TPDO channel being sent; '1' when the frame on tx_req_o is an RPDO poll
-    signal txc    : natural range 0 to N_TPDO - 1;
-    signal tx_pol : std_logic;
+    -- item being sent
+    signal txi : natural range 0 to n_items_c - 1;
     -- frame registers
     signal tx_req  : std_logic;
     signal tx_id   : std_logic_vector(10 downto 0);
@@ -376,6 +494,10 @@ architecture rtl of canopen_pdo_engine is
     -- 100 us prescaler of tick_us_i and its strobe
     signal pre_us  : natural range 0 to inhibit_unit_us_c - 1;
     signal tick100 : std_logic;
+    -- the item under the scan pointer starts a frame; a frame is on tx_req_o after the next
+    -- edge (not taken at it)
+    signal started : std_logic;
+    signal tx_soon : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Receiver
@@ -386,30 +508,12 @@ architecture rtl of canopen_pdo_engine is
     signal rx_rtr_q  : std_logic;
     signal rx_dlc_q  : std_logic_vector(3 downto 0);
     signal rx_data_q : std_logic_vector(63 downto 0);
-    -- first matching RPDO (data frame) and TPDO with RTR allowed (remote frame)
-    signal m_r_any : std_logic;
-    signal m_r_idx : natural range 0 to N_RPDO - 1;
-    signal m_t_any : std_logic;
-    signal m_t_idx : natural range 0 to N_TPDO - 1;
     -- TPDO whose RTR reply is awaited
     signal rx_k : natural range 0 to N_TPDO - 1;
-    -- in S_RX_MATCH: the data frame is stored; it has a wrong DLC; it is an RTR for a TPDO
-    -- (and the TPDO is not inhibited); nothing matched
-    signal rx_store   : std_logic;
-    signal rx_len     : std_logic;
-    signal rx_rtr_hit : std_logic;
-    signal rtr_elig   : std_logic;
-    signal rx_unexp   : std_logic;
-    -- per channel: RTR request, length error (decided in S_RX_MATCH)
-    signal rtr_set : std_logic_vector(N_TPDO - 1 downto 0);
-    signal len_set : std_logic_vector(N_RPDO - 1 downto 0);
-    -- transmitter decisions: item starting a frame, any item starting, TPDO frame taken, a
-    -- frame on tx_req_o now or at the next edge
-    signal t_start : std_logic_vector(N_TPDO - 1 downto 0);
-    signal r_start : std_logic_vector(N_RPDO - 1 downto 0);
-    signal started : std_logic;
-    signal t_ack   : std_logic_vector(N_TPDO - 1 downto 0);
-    signal tx_soon : std_logic;
+    -- the matched TPDO is not inhibited (the RTR reply can start now)
+    signal rtr_elig : std_logic;
+    -- the awaited reply can no longer come (request gone or inhibited)
+    signal rx_gone : std_logic;
     -- end of the synchronous window; PDO_CTRL.CLR_COUNTERS written
     signal win_end : std_logic;
     signal clr     : std_logic;
@@ -421,13 +525,9 @@ architecture rtl of canopen_pdo_engine is
     signal ev_len_q   : std_logic;
     signal ev_miss_q  : std_logic;
     signal ev_late_q  : std_logic;
+    signal ev_rtr_q   : std_logic;
     -- window_open_i of the previous cycle (falling edge = window end)
     signal win_q : std_logic;
-    -- RTR strobe (PDO_CNT_RTR)
-    signal ev_rtr_q : std_logic;
-    -- scan pointers serialising the late / missed events into strobes
-    signal lscan : natural range 0 to N_TPDO - 1;
-    signal mscan : natural range 0 to N_RPDO - 1;
 
 begin
 
@@ -443,13 +543,17 @@ begin
     wr_cmd   <= reg_we_i when is_off(reg_addr_i, off_cmd_c) else '0';
     wr_rxnew <= reg_we_i when is_off(reg_addr_i, off_rx_new_c) else '0';
 
-    sel_t_ok <= '1' when sel_rpdo = '0' and sel_ch < N_TPDO else '0';
-    sel_r_ok <= '1' when sel_rpdo = '1' and sel_ch < N_RPDO else '0';
     commit_t <= wr_cmd and sel_t_ok and reg_wdata_i(PDO_CMD_COMMIT_C);
+    clr      <= wr_ctrl and reg_wdata_i(PDO_CTRL_CLR_COUNTERS_C);
 
     stg_view <= staging when stg_load = '0' else
                 (others => '0') when stg_zero = '1' else
                 tb_q;
+
+    shc_view <= sh_cfg when sh_load = '0' else
+                cb_q when i_cv(sel_item) = '1' else
+                (others => '0');
+    sel_tt   <= unsigned(shc_view(cw_tt_hi_c downto cw_tt_lo_c));
 
     -- host input validation of a PDO_CFG write: DLC 0..8, TT not reserved (241..251)
     cfg_ok    <= '1' when unsigned(reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)) <= 8
@@ -459,139 +563,558 @@ begin
                  '0';
     wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok);
 
-    elig_gen : for k in 0 to N_TPDO - 1 generate
-        t_elig(k) <= t_due(k) and t_valid(k) and not t_inh_1st(k) when t_inh_cnt(k) = 0 else
-                     '0';
-    end generate elig_gen;
+    -- the channel named by a PDO_SEL write
+    new_sel_proc : process (reg_wdata_i) is
 
-    r_elig <= r_poll and r_valid;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Shared incrementers
-    -- ---------------------------------------------------------------------------------------------
-    share_proc : process (all) is
-
-        variable rseq_v : unsigned(15 downto 0);
-        variable rlen_v : unsigned(15 downto 0);
-        variable tseq_v : unsigned(15 downto 0);
-        variable late_v : unsigned(15 downto 0);
-        variable miss_v : unsigned(15 downto 0);
+        variable ch_v : natural range 0 to 31;
 
     begin
 
-        rseq_v := (others => '0');
-        rlen_v := (others => '0');
-        miss_v := (others => '0');
+        ch_v := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)));
 
-        for k in 0 to N_RPDO - 1 loop
+        new_ok   <= '0';
+        new_item <= 0;
 
-            if m_r_idx = k then
-                rseq_v := r_seq(k);
-                rlen_v := r_len(k);
+        if reg_wdata_i(PDO_SEL_RPDO_C) = '0' then
+            if ch_v < N_TPDO then
+                new_ok   <= '1';
+                new_item <= ch_v;
             end if;
+        elsif ch_v < N_RPDO then
+            new_ok   <= '1';
+            new_item <= N_TPDO + ch_v;
+        end if;
 
-            if mscan = k then
-                miss_v := r_miss(k);
-            end if;
+    end process new_sel_proc;
 
-        end loop;
+    hb_ra <= new_item when wr_sel = '1' and new_ok = '1' else
+             sel_item;
 
-        tseq_v := (others => '0');
-        late_v := (others => '0');
+    -- ---------------------------------------------------------------------------------------------
+    -- Frame eligibility (TPDO: due, not inhibited, no SYNC visit pending; RPDO: poll due) and
+    -- the flags of the selected channel
+    -- ---------------------------------------------------------------------------------------------
+    elig_t_gen : for k in 0 to N_TPDO - 1 generate
+        i_elig(k) <= t_due(k) and not t_inh(k) and not i_sp(k);
+    end generate elig_t_gen;
+
+    elig_r_gen : for k in 0 to N_RPDO - 1 generate
+        i_elig(N_TPDO + k) <= r_poll(k);
+    end generate elig_r_gen;
+
+    sel_flags_proc : process (sel_ch, t_pend, t_due, t_inh, r_poll) is
+    begin
+
+        sel_pend <= '0';
+        sel_due  <= '0';
+        sel_inh  <= '0';
+        sel_poll <= '0';
 
         for k in 0 to N_TPDO - 1 loop
 
-            if txc = k then
-                tseq_v := t_seq(k);
-            end if;
-
-            if lscan = k then
-                late_v := t_late(k);
+            if sel_ch = k then
+                sel_pend <= t_pend(k);
+                sel_due  <= t_due(k);
+                sel_inh  <= t_inh(k);
             end if;
 
         end loop;
 
-        rx_seq_next <= rseq_v + 1;
-        rx_len_next <= sat_inc(rlen_v);
-        tx_seq_next <= tseq_v + 1;
-        late_next   <= sat_inc(late_v);
-        miss_next   <= sat_inc(miss_v);
+        for k in 0 to N_RPDO - 1 loop
 
-    end process share_proc;
+            if sel_ch = k then
+                sel_poll <= r_poll(k);
+            end if;
+
+        end loop;
+
+    end process sel_flags_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- RAM ports
+    -- Engine arbiter: the operation started in E_IDLE and the read address of the RAMs A
+    -- (priority: receive, TPDO taken, frame read, sweep)
     -- ---------------------------------------------------------------------------------------------
-    ram_ctrl_proc : process (all) is
+    arb_proc : process (e_st, e_item, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
+                        sw_busy, sw_ptr) is
+
+        variable rtr_v : std_logic;
+
+    begin
+
+        e_gop <= OP_NONE;
+        e_ra  <= e_item;
+
+        if rx_st = S_RX_IDLE then
+            rtr_v := rx_rtr_i;
+        else
+            rtr_v := rx_rtr_q;
+        end if;
+
+        rx_rtr_now <= rtr_v;
+
+        case e_st is
+
+            when E_IDLE =>
+
+                if (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
+                    e_gop <= OP_RX;
+                    if rtr_v = '1' then
+                        e_ra <= 0;
+                    else
+                        e_ra <= N_TPDO;
+                    end if;
+                elsif tx_st = S_ACK then
+                    e_gop <= OP_TXACK;
+                    e_ra  <= txi;
+                elsif tx_st = S_READ then
+                    e_gop <= OP_TXRD;
+                    e_ra  <= txi;
+                elsif sw_busy = '1' and rx_st /= S_RX_REPLY then
+                    -- (no sweep item while an RTR reply is being started)
+                    e_gop <= OP_SWEEP;
+                    e_ra  <= sw_ptr;
+                end if;
+
+            when E_MATCH =>
+
+                if e_item < n_items_c - 1 then
+                    e_ra <= e_item + 1;
+                end if;
+
+            when E_EXEC =>
+
+                null;
+
+        end case;
+
+    end process arb_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
+    -- ---------------------------------------------------------------------------------------------
+    exec_proc : process (e_st, e_op, e_item, e_last, e_hit, ca_q, sa_q, i_stale, i_cfgn, i_sp,
+                         i_cv, i_fresh,
+                         t_due, t_ns, t_inh, t_latev, r_gs, sw_tick, rx_id_q, rx_rtr_q,
+                         rx_dlc_q) is
+
+        variable w      : std_logic_vector(sw_w_c - 1 downto 0);
+        variable tt_v   : unsigned(7 downto 0);
+        variable left_v : unsigned(7 downto 0);
+        variable c1_v   : unsigned(15 downto 0);
+        variable c2_v   : unsigned(15 downto 0);
+        variable valid  : boolean;
+        variable cyc    : boolean;
+        variable late_v : boolean;
+        variable acc_v  : std_logic;
+        variable f1_v   : std_logic;
+        variable match  : boolean;
+        variable k      : natural range 0 to n_items_c - 1;
+
+    begin
+
+        x_we    <= '0';
+        x_visit <= '0';
+        x_due   <= '0';
+        x_late  <= '0';
+        x_inhc  <= '0';
+        x_inhs  <= '0';
+        x_poll  <= '0';
+        x_miss  <= '0';
+        x_match <= '0';
+        x_store <= '0';
+        x_len   <= '0';
+        x_rtr   <= '0';
+        x_mdone <= '0';
+
+        -- the state word with the lazy resets applied
+        k      := e_item;
+        w      := sa_q;
+        tt_v   := unsigned(ca_q(cw_tt_hi_c downto cw_tt_lo_c));
+        valid  := ca_q(cw_valid_c) = '1' and i_cv(k) = '1';
+        cyc    := tt_v /= 0 and tt_v <= tt_sync_max_c;
+        late_v := false;
+
+        if i_fresh(k) = '1' then
+            w := (others => '0');
+        end if;
+
+        if i_stale(k) = '1' then
+            w(sw_c1_hi_c downto sw_c1_lo_c) := (others => '0');
+            if k >= N_TPDO then
+                w(sw_c2_hi_c downto sw_c2_lo_c) := (others => '0');
+            end if;
+        end if;
+
+        if i_cfgn(k) = '1' then
+            if k < N_TPDO then
+                w(sw_left_hi_c downto sw_left_lo_c) := std_logic_vector(tt_v);
+            else
+                w(sw_f1_c) := '0';
+                w(sw_f2_c) := '0';
+            end if;
+        end if;
+
+        left_v := unsigned(w(sw_left_hi_c downto sw_left_lo_c));
+        c1_v   := unsigned(w(sw_c1_hi_c downto sw_c1_lo_c));
+        c2_v   := unsigned(w(sw_c2_hi_c downto sw_c2_lo_c));
+        f1_v   := w(sw_f1_c);
+        acc_v  := w(sw_f2_c);
+
+        x_tseq <= std_logic_vector(unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+
+        if e_st = E_EXEC then
+
+            case e_op is
+
+                when OP_SWEEP =>
+
+                    x_visit <= '1';
+                    x_we    <= '1';
+
+                    if k < N_TPDO then
+                        -- SYNC: the frame of the previous SYNC not sent is late; DUE again
+                        if i_sp(k) = '1' then
+                            late_v := t_due(k) = '1';
+                            if valid and tt_v <= tt_sync_max_c then
+                                if tt_v = 0 then
+                                    x_due <= t_ns(k);
+                                elsif left_v <= 1 then
+                                    x_due  <= '1';
+                                    left_v := tt_v;
+                                else
+                                    left_v := left_v - 1;
+                                end if;
+                            end if;
+                        end if;
+                        if t_latev(k) = '1' then
+                            late_v := true;
+                        end if;
+                        if late_v then
+                            x_late <= '1';
+                            c1_v   := sat_inc(c1_v);
+                        end if;
+                        -- inhibit tick: the first (partial) one, then TIME_100US full ones
+                        if sw_tick = '1' and t_inh(k) = '1' then
+                            if f1_v = '1' then
+                                f1_v := '0';
+                            elsif c2_v /= 0 then
+                                c2_v := c2_v - 1;
+                            end if;
+                            if f1_v = '0' and c2_v = 0 then
+                                x_inhc <= '1';
+                            end if;
+                        end if;
+                    elsif i_sp(k) = '1' and valid then
+                        -- SYNC: RTR poll; missed-cycle monitor of a synchronous RPDO
+                        if ca_q(cw_rtr_c) = '1' then
+                            x_poll <= '1';
+                        end if;
+                        if f1_v = '1' and cyc then
+                            acc_v := acc_v or r_gs(k - N_TPDO);
+                            if left_v <= 1 then
+                                if acc_v = '0' then
+                                    x_miss <= '1';
+                                    c2_v   := sat_inc(c2_v);
+                                end if;
+                                acc_v  := '0';
+                                left_v := tt_v;
+                            else
+                                left_v := left_v - 1;
+                            end if;
+                        end if;
+                    end if;
+
+                when OP_TXACK =>
+
+                    x_we                                  <= '1';
+                    w(sw_seq_hi_c downto sw_seq_lo_c) := std_logic_vector(
+                        unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+                    if tt_v >= tt_event_c and unsigned(ca_q(cw_inh_hi_c downto cw_inh_lo_c)) /= 0 then
+                        -- TIME_100US full ticks after the first (partial) one
+                        c2_v   := unsigned(ca_q(cw_inh_hi_c downto cw_inh_lo_c));
+                        f1_v   := '1';
+                        x_inhs <= '1';
+                    end if;
+
+                when others =>
+
+                    null;
+
+            end case;
+
+        elsif e_st = E_MATCH then
+            match := ca_q(cw_cob_hi_c downto cw_cob_lo_c) = rx_id_q and valid;
+            if rx_rtr_q = '1' then
+                match := match and ca_q(cw_rtr_c) = '1';
+            end if;
+            if match then
+                x_match <= '1';
+                x_mdone <= '1';
+                if rx_rtr_q = '1' then
+                    x_rtr <= '1';
+                elsif ca_q(cw_dlc_hi_c downto cw_dlc_lo_c) = rx_dlc_q then
+                    x_store                               <= '1';
+                    x_we                                  <= '1';
+                    w(sw_seq_hi_c downto sw_seq_lo_c) := std_logic_vector(
+                        unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+                    if f1_v = '0' then
+                        -- the monitor starts at the SYNC that caused this PDO (a SYNC visit
+                        -- still pending for the item takes one off)
+                        f1_v   := '1';
+                        left_v := tt_v + bit_int(i_sp(k));
+                    end if;
+                else
+                    x_len <= '1';
+                    x_we  <= '1';
+                    c1_v  := sat_inc(c1_v);
+                end if;
+            elsif e_item = e_last then
+                x_mdone <= '1';
+            end if;
+        end if;
+
+        w(sw_left_hi_c downto sw_left_lo_c) := std_logic_vector(left_v);
+        w(sw_c1_hi_c downto sw_c1_lo_c)     := std_logic_vector(c1_v);
+        w(sw_c2_hi_c downto sw_c2_lo_c)     := std_logic_vector(c2_v);
+        w(sw_f1_c)                          := f1_v;
+        w(sw_f2_c)                          := acc_v;
+        x_wd                                <= w;
+
+    end process exec_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Engine sequencer and sweep
+    -- ---------------------------------------------------------------------------------------------
+    eng_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            e_st     <= E_IDLE;
+            e_op     <= OP_NONE;
+            e_item   <= 0;
+            e_last   <= 0;
+            e_hit    <= '0';
+            sw_busy  <= '0';
+            sw_ptr   <= 0;
+            sw_tick  <= '0';
+            sync_req <= '0';
+            tick_req <= '0';
+            late_req <= '0';
+            win_q    <= '0';
+            pre_us   <= 0;
+            tick100  <= '0';
+        elsif rising_edge(clk_i) then
+            win_q <= window_open_i;
+            -- the host writes the configuration of the item read at this edge
+            if wr_cfg_ok = '1' and sel_item = e_ra then
+                e_hit <= '1';
+            else
+                e_hit <= '0';
+            end if;
+
+            -- 100 us prescaler of the inhibit times
+            tick100 <= '0';
+            if tick_us_i = '1' then
+                if pre_us = inhibit_unit_us_c - 1 then
+                    pre_us  <= 0;
+                    tick100 <= '1';
+                else
+                    pre_us <= pre_us + 1;
+                end if;
+            end if;
+
+            case e_st is
+
+                when E_IDLE =>
+
+                    e_item <= e_ra;
+                    e_op   <= e_gop;
+                    if rx_rtr_now = '1' then
+                        e_last <= N_TPDO - 1;
+                    else
+                        e_last <= n_items_c - 1;
+                    end if;
+                    if e_gop = OP_RX then
+                        e_st <= E_MATCH;
+                    elsif e_gop /= OP_NONE then
+                        e_st <= E_EXEC;
+                    end if;
+
+                when E_EXEC =>
+
+                    e_st <= E_IDLE;
+                    if e_op = OP_SWEEP then
+                        if sw_ptr = n_items_c - 1 then
+                            sw_busy <= '0';
+                            sw_ptr  <= 0;
+                        else
+                            sw_ptr <= sw_ptr + 1;
+                        end if;
+                    end if;
+
+                when E_MATCH =>
+
+                    if x_mdone = '1' then
+                        e_st <= E_IDLE;
+                    else
+                        e_item <= e_ra;
+                    end if;
+
+            end case;
+
+            -- sweep requests: SYNC, 100 us tick, window end
+            if sync_i = '1' then
+                sync_req <= '1';
+            end if;
+            if tick100 = '1' then
+                tick_req <= '1';
+            end if;
+            if win_end = '1' then
+                late_req <= '1';
+            end if;
+            if sw_busy = '0' and (sync_req = '1' or tick_req = '1' or late_req = '1') then
+                sw_busy  <= '1';
+                sw_ptr   <= 0;
+                sw_tick  <= tick_req;
+                sync_req <= sync_i;
+                tick_req <= tick100;
+                late_req <= win_end;
+            end if;
+        end if;
+
+    end process eng_proc;
+
+    -- SYNC window end (a SYNC in the same cycle takes precedence)
+    win_end <= win_q and not window_open_i and not sync_i;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- RAMs
+    -- ---------------------------------------------------------------------------------------------
+    -- host configuration write: PDO_CFG (with the inhibit time kept) or PDO_INHIBIT (TPDO)
+    c_we <= wr_cfg_ok or (wr_inh and sel_t_ok);
+    c_wa <= sel_item;
+
+    cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view) is
+    begin
+
+        c_wd <= shc_view;
+
+        if wr_cfg = '1' then
+            c_wd(cw_cob_hi_c downto cw_cob_lo_c) <=
+                reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
+            c_wd(cw_rtr_c)                       <= reg_wdata_i(PDO_CFG_RTR_C);
+            c_wd(cw_valid_c)                     <= reg_wdata_i(PDO_CFG_VALID_C);
+            c_wd(cw_dlc_hi_c downto cw_dlc_lo_c) <=
+                reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C);
+            c_wd(cw_tt_hi_c downto cw_tt_lo_c)   <=
+                reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C);
+        else
+            c_wd(cw_inh_hi_c downto cw_inh_lo_c) <=
+                reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C);
+        end if;
+
+    end process cfg_wd_proc;
+
+    cram_a_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if c_we = '1' then
+                cram_a(c_wa) <= c_wd;
+            end if;
+            ca_q <= cram_a(e_ra);
+        end if;
+
+    end process cram_a_proc;
+
+    cram_b_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if c_we = '1' then
+                cram_b(c_wa) <= c_wd;
+            end if;
+            cb_q <= cram_b(hb_ra);
+        end if;
+
+    end process cram_b_proc;
+
+    sram_a_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if x_we = '1' then
+                sram_a(e_item) <= x_wd;
+            end if;
+            sa_q <= sram_a(e_ra);
+        end if;
+
+    end process sram_a_proc;
+
+    sram_b_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if x_we = '1' then
+                sram_b(e_item) <= x_wd;
+            end if;
+            sb_q <= sram_b(hb_ra);
+        end if;
+
+    end process sram_b_proc;
+
+    -- TPDO data: commit of the staging register into the inactive bank of the selected TPDO;
+    -- the transmitter reads the active bank of its channel, the host select the latest
+    -- committed bank
+    t_ram_ctrl_proc : process (commit_t, sel_ch, t_act, t_pend, stg_view, txi, wr_sel,
+                               reg_wdata_i, new_ok) is
 
         variable ch_v   : natural range 0 to 31;
-        variable act_v  : std_logic;
         variable bank_v : std_logic;
 
     begin
 
-        -- commit: the staging register into the inactive bank of the selected TPDO (static
-        -- indices only: sel_ch may name a channel that does not exist, and sel_t_ok follows it
-        -- one delta later)
         t_we <= commit_t;
         t_wa <= 0;
+        t_wd <= stg_view;
 
         for k in 0 to N_TPDO - 1 loop
 
-            if sel_ch = k and sel_rpdo = '0' then
+            if sel_ch = k then
                 t_wa <= 2 * k + 1 - bit_int(t_act(k));
             end if;
 
         end loop;
 
-        t_wd <= stg_view;
-
-        -- transmitter: the active bank of channel txc
-        act_v := '0';
+        ta_ra <= 0;
 
         for k in 0 to N_TPDO - 1 loop
 
-            if txc = k then
-                act_v := t_act(k);
+            if txi = k then
+                ta_ra <= 2 * k + bit_int(t_act(k));
             end if;
 
         end loop;
 
-        ta_ra <= 2 * txc + bit_int(act_v);
+        tb_ra  <= 0;
+        tb_re  <= '0';
+        ch_v   := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)));
+        bank_v := '0';
 
-        -- host select (PDO_SEL written): TPDO latest committed bank into tb_q, RPDO snapshot
-        tb_ra <= 0;
-        tb_re <= '0';
-        rr_re <= '0';
-        rr_ra <= 0;
+        for k in 0 to N_TPDO - 1 loop
 
-        if wr_sel = '1' then
-            ch_v := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)));
-            if reg_wdata_i(PDO_SEL_RPDO_C) = '0' and ch_v < N_TPDO then
-                bank_v := '0';
-
-                for k in 0 to N_TPDO - 1 loop
-
-                    if ch_v = k then
-                        bank_v := t_act(k) xor t_pend(k);
-                    end if;
-
-                end loop;
-
-                tb_ra <= 2 * ch_v + bit_int(bank_v);
-                tb_re <= '1';
-            elsif reg_wdata_i(PDO_SEL_RPDO_C) = '1' and ch_v < N_RPDO then
-                rr_re <= '1';
-                rr_ra <= ch_v;
+            if ch_v = k then
+                bank_v := t_act(k) xor t_pend(k);
+                tb_ra  <= 2 * k + bit_int(bank_v);
             end if;
+
+        end loop;
+
+        if wr_sel = '1' and new_ok = '1' and reg_wdata_i(PDO_SEL_RPDO_C) = '0' then
+            tb_re <= '1';
         end if;
 
-        -- receiver: store a data frame with the right DLC
-        rr_we <= rx_store;
-        rr_wa <= m_r_idx;
-        rr_wd <= sync_count_i & std_logic_vector(rx_seq_next) & keep_bytes(rx_data_q, rx_dlc_q);
-
-    end process ram_ctrl_proc;
+    end process t_ram_ctrl_proc;
 
     tram_a_proc : process (clk_i) is
     begin
@@ -617,6 +1140,15 @@ begin
 
     end process tram_b_proc;
 
+    -- RPDO data: stored by the receive match, read into the snapshot by the host select
+    rr_we <= x_store;
+    rr_wa <= e_item - N_TPDO when e_item >= N_TPDO else
+             0;
+    rr_wd <= sync_count_i & x_tseq & keep_bytes(rx_data_q, rx_dlc_q);
+    rr_re <= wr_sel and new_ok and reg_wdata_i(PDO_SEL_RPDO_C);
+    rr_ra <= new_item - N_TPDO when new_item >= N_TPDO else
+             0;
+
     rram_proc : process (clk_i) is
     begin
 
@@ -632,165 +1164,37 @@ begin
     end process rram_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Receive match: lowest valid RPDO with the frame's COB-ID (data frames), lowest valid
-    -- TPDO with RTR allowed (remote frames)
+    -- Host window: selection, shadows, snapshots, staging register
     -- ---------------------------------------------------------------------------------------------
-    match_proc : process (all) is
+    shs_view_proc : process (shs_load, sh_st, sb_q, i_stale, i_fresh, sel_item) is
     begin
 
-        m_r_any <= '0';
-        m_r_idx <= 0;
-        m_t_any <= '0';
-        m_t_idx <= 0;
-
-        for k in N_RPDO - 1 downto 0 loop
-
-            if r_valid(k) = '1' and r_cob(k) = rx_id_q then
-                m_r_any <= '1';
-                m_r_idx <= k;
+        if shs_load = '1' then
+            shs_view <= sb_q(sw_c2_hi_c downto sw_seq_lo_c);
+            if i_fresh(sel_item) = '1' then
+                shs_view <= (others => '0');
+            elsif i_stale(sel_item) = '1' then
+                shs_view(sw_c2_hi_c downto sw_c1_lo_c) <= (others => '0');
             end if;
-
-        end loop;
-
-        for k in N_TPDO - 1 downto 0 loop
-
-            if t_valid(k) = '1' and t_rtr(k) = '1' and t_cob(k) = rx_id_q then
-                m_t_any <= '1';
-                m_t_idx <= k;
-            end if;
-
-        end loop;
-
-        rx_store <= '0';
-
-        for k in 0 to N_RPDO - 1 loop
-
-            if rx_st = S_RX_MATCH and rx_rtr_q = '0' and m_r_any = '1' and m_r_idx = k
-               and r_dlc(k) = rx_dlc_q then
-                rx_store <= '1';
-            end if;
-
-        end loop;
-
-    end process match_proc;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Decisions shared by the clocked processes below
-    -- ---------------------------------------------------------------------------------------------
-    decide_proc : process (all) is
-
-        variable any_v : std_logic;
-
-    begin
-
-        -- transmitter: the item under the scan pointer starts a frame
-        t_start <= (others => '0');
-        r_start <= (others => '0');
-        any_v   := '0';
-
-        if tx_st = S_IDLE then
-
-            for k in 0 to N_TPDO - 1 loop
-
-                if p = k and t_elig(k) = '1' then
-                    t_start(k) <= '1';
-                    any_v      := '1';
-                end if;
-
-            end loop;
-
-            for k in 0 to N_RPDO - 1 loop
-
-                if p = N_TPDO + k and r_elig(k) = '1' then
-                    r_start(k) <= '1';
-                    any_v      := '1';
-                end if;
-
-            end loop;
-
-        end if;
-
-        started <= any_v;
-
-        -- transmitter: the TPDO frame on tx_req_o is taken
-        t_ack <= (others => '0');
-
-        for k in 0 to N_TPDO - 1 loop
-
-            if tx_st = S_WAIT and tx_ack_i = '1' and tx_pol = '0' and txc = k then
-                t_ack(k) <= '1';
-            end if;
-
-        end loop;
-
-        -- a frame is on tx_req_o after the next edge (not taken at it)
-        if (tx_req = '1' and tx_ack_i = '0') or tx_st = S_LATCH then
-            tx_soon <= '1';
         else
-            tx_soon <= '0';
+            shs_view <= sh_st;
         end if;
 
-        -- receiver, in S_RX_MATCH: wrong DLC, RTR for a TPDO, nothing matched
-        rx_len     <= '0';
-        rx_rtr_hit <= '0';
-        rx_unexp   <= '0';
+    end process shs_view_proc;
 
-        if rx_st = S_RX_MATCH then
-            if rx_rtr_q = '0' and m_r_any = '1' then
-                rx_len <= not rx_store;
-            elsif rx_rtr_q = '1' and m_t_any = '1' then
-                rx_rtr_hit <= '1';
-            else
-                rx_unexp <= '1';
-            end if;
-        end if;
-
-        len_set  <= (others => '0');
-        rtr_set  <= (others => '0');
-        rtr_elig <= '0';
-
-        for k in 0 to N_RPDO - 1 loop
-
-            if m_r_idx = k and rx_len = '1' then
-                len_set(k) <= '1';
-            end if;
-
-        end loop;
-
-        for k in 0 to N_TPDO - 1 loop
-
-            if m_t_idx = k and rx_rtr_hit = '1' then
-                rtr_set(k) <= '1';
-                if t_inh_cnt(k) = 0 and t_inh_1st(k) = '0' then
-                    rtr_elig <= '1';
-                end if;
-            end if;
-
-        end loop;
-
-        -- SYNC window end (a SYNC in the same cycle takes precedence), counter clear
-        if win_q = '1' and window_open_i = '0' and sync_i = '0' then
-            win_end <= '1';
-        else
-            win_end <= '0';
-        end if;
-
-        clr <= wr_ctrl and reg_wdata_i(PDO_CTRL_CLR_COUNTERS_C);
-
-    end process decide_proc;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Host window: selection, snapshots, staging register
-    -- ---------------------------------------------------------------------------------------------
     host_proc : process (clk_i, rst_n_i) is
-
-        variable w_ch : natural range 0 to 31;
-
     begin
 
         if rst_n_i = '0' then
             sel_ch   <= 0;
             sel_rpdo <= '0';
+            sel_item <= 0;
+            sel_t_ok <= '1';
+            sel_r_ok <= '0';
+            sh_cfg   <= (others => '0');
+            sh_st    <= (others => '0');
+            sh_load  <= '0';
+            shs_load <= '0';
             staging  <= (others => '0');
             stg_load <= '0';
             stg_zero <= '0';
@@ -798,27 +1202,50 @@ begin
             snap_ok  <= '0';
             sel_ref  <= '0';
         elsif rising_edge(clk_i) then
+            -- shadows: loaded in the cycle after a select, then written through
+            sh_load  <= '0';
+            shs_load <= '0';
+            if sh_load = '1' then
+                sh_cfg <= shc_view;
+            end if;
+            if shs_load = '1' then
+                sh_st <= shs_view;
+            end if;
+            if c_we = '1' then
+                sh_cfg <= c_wd;
+            end if;
+            if x_we = '1' and e_item = sel_item then
+                sh_st <= x_wd(sw_c2_hi_c downto sw_seq_lo_c);
+            end if;
+
             -- REFUSED: the last PDO_SEL / PDO_CFG write (nothing changed by a refused one)
             if wr_cfg = '1' then
                 sel_ref <= not wr_cfg_ok;
             end if;
             if wr_sel = '1' then
-                w_ch     := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto
-                                                            PDO_SEL_CH_LO_C)));
-                sel_ch   <= w_ch;
+                sel_ch   <= to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto
+                                                             PDO_SEL_CH_LO_C)));
                 sel_rpdo <= reg_wdata_i(PDO_SEL_RPDO_C);
+                sel_item <= new_item;
+                sel_t_ok <= new_ok and not reg_wdata_i(PDO_SEL_RPDO_C);
+                sel_r_ok <= new_ok and reg_wdata_i(PDO_SEL_RPDO_C);
                 -- a channel that does not exist: the window shows none (reads 0, ignores writes)
-                if (reg_wdata_i(PDO_SEL_RPDO_C) = '0' and w_ch < N_TPDO)
-                   or (reg_wdata_i(PDO_SEL_RPDO_C) = '1' and w_ch < N_RPDO) then
-                    sel_ref <= '0';
-                else
-                    sel_ref <= '1';
+                sel_ref  <= not new_ok;
+                sh_load  <= new_ok;
+                shs_load <= new_ok;
+                if new_ok = '0' then
+                    sh_cfg <= (others => '0');
+                    sh_st  <= (others => '0');
+                elsif x_we = '1' and e_item = new_item then
+                    -- the state word written at this edge (copy B reads the old one)
+                    sh_st    <= x_wd(sw_c2_hi_c downto sw_seq_lo_c);
+                    shs_load <= '0';
                 end if;
                 snap_ok <= '0';
 
                 for k in 0 to N_RPDO - 1 loop
 
-                    if w_ch = k then
+                    if new_item = N_TPDO + k then
                         snap_new <= r_new(k);
                         snap_ok  <= r_ok(k);
                     end if;
@@ -827,12 +1254,15 @@ begin
 
                 for k in 0 to N_TPDO - 1 loop
 
-                    if w_ch = k then
+                    if new_item = k then
                         stg_zero <= not (t_ok(k) or t_pend(k));
                     end if;
 
                 end loop;
 
+            end if;
+            if clr = '1' then
+                sh_st(sw_c2_hi_c downto sw_c1_lo_c) <= (others => '0');
             end if;
 
             stg_load <= tb_re;
@@ -852,14 +1282,19 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Transmitter: round-robin scan, one frame at a time
     -- ---------------------------------------------------------------------------------------------
+    started <= i_elig(p) when tx_st = S_IDLE else
+               '0';
+    tx_soon <= '1' when (tx_req = '1' and tx_ack_i = '0')
+                        or (e_st = E_EXEC and e_op = OP_TXRD) else
+               '0';
+
     tx_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
             tx_st  <= S_IDLE;
             p      <= 0;
-            txc    <= 0;
-            tx_pol <= '0';
+            txi    <= 0;
             tx_req <= '0';
         elsif rising_edge(clk_i) then
 
@@ -867,29 +1302,14 @@ begin
 
                 when S_IDLE =>
 
-                    for k in 0 to N_TPDO - 1 loop
+                    if started = '1' then
+                        txi   <= p;
+                        tx_st <= S_READ;
+                    end if;
 
-                        if t_start(k) = '1' then
-                            txc   <= k;
-                            tx_st <= S_READ;
-                        end if;
-
-                    end loop;
-
-                    for k in 0 to N_RPDO - 1 loop
-
-                        if r_start(k) = '1' then
-                            tx_pol <= '1';
-                            tx_req <= '1';
-                            tx_st  <= S_WAIT;
-                        end if;
-
-                    end loop;
-
-                    if rx_rtr_hit = '1' and rtr_elig = '1' and tx_soon = '0'
-                       and started = '0' then
+                    if x_rtr = '1' and rtr_elig = '1' and tx_soon = '0' and started = '0' then
                         -- an RTR reply is awaited: look at its channel next
-                        p <= m_t_idx;
+                        p <= e_item;
                     elsif rx_st = S_RX_REPLY and started = '0' then
                         p <= rx_k;
                     elsif p = n_items_c - 1 then
@@ -900,19 +1320,30 @@ begin
 
                 when S_READ =>
 
-                    tx_st <= S_LATCH;
-
-                when S_LATCH =>
-
-                    tx_pol <= '0';
-                    tx_req <= '1';
-                    tx_st  <= S_WAIT;
+                    if e_st = E_EXEC and e_op = OP_TXRD then
+                        tx_req <= '1';
+                        tx_st  <= S_WAIT;
+                    end if;
 
                 when S_WAIT =>
 
                     if tx_ack_i = '1' then
                         tx_req <= '0';
-                        tx_st  <= S_IDLE;
+                        if txi < N_TPDO then
+                            tx_st <= S_ACK;
+                        else
+                            tx_st <= S_IDLE;
+                        end if;
+                    end if;
+
+                when S_ACK =>
+
+                    if e_st = E_EXEC and e_op = OP_TXACK then
+                        tx_st <= S_IDLE;
+                        if rx_st = S_RX_REPLY then
+                            -- an RTR reply is awaited: look at its channel next
+                            p <= rx_k;
+                        end if;
                     end if;
 
             end case;
@@ -923,46 +1354,64 @@ begin
 
     -- frame registers: datapath, qualified by tx_req (no reset)
     tx_frame_proc : process (clk_i) is
+
+        variable ok_v : std_logic;
+
     begin
 
         if rising_edge(clk_i) then
-
-            for k in 0 to N_RPDO - 1 loop
-
-                if r_start(k) = '1' then
-                    tx_id   <= r_cob(k);
-                    tx_rtr  <= '1';
-                    tx_dlc  <= r_dlc(k);
-                    tx_data <= (others => '0');
-                end if;
-
-            end loop;
-
-            if tx_st = S_LATCH then
+            if e_st = E_EXEC and e_op = OP_TXRD then
+                ok_v := '0';
 
                 for k in 0 to N_TPDO - 1 loop
 
-                    if txc = k then
-                        tx_id  <= t_cob(k);
-                        tx_rtr <= '0';
-                        tx_dlc <= t_dlc(k);
-                        if t_ok(k) = '1' then
-                            tx_data <= keep_bytes(ta_q, t_dlc(k));
-                        else
-                            tx_data <= (others => '0');
-                        end if;
+                    if txi = k then
+                        ok_v := t_ok(k);
                     end if;
 
                 end loop;
 
+                tx_id  <= ca_q(cw_cob_hi_c downto cw_cob_lo_c);
+                tx_dlc <= ca_q(cw_dlc_hi_c downto cw_dlc_lo_c);
+                if txi < N_TPDO then
+                    tx_rtr <= '0';
+                    if ok_v = '1' then
+                        tx_data <= keep_bytes(ta_q, ca_q(cw_dlc_hi_c downto cw_dlc_lo_c));
+                    else
+                        tx_data <= (others => '0');
+                    end if;
+                else
+                    tx_rtr  <= '1';
+                    tx_data <= (others => '0');
+                end if;
             end if;
         end if;
 
     end process tx_frame_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Receiver: frame registered, matched, answered
+    -- Receiver: frame registered, matched by the engine, answered
     -- ---------------------------------------------------------------------------------------------
+    rx_flags_proc : process (e_item, t_inh, rx_k, t_due) is
+    begin
+
+        rtr_elig <= '0';
+        rx_gone  <= '0';
+
+        for k in 0 to N_TPDO - 1 loop
+
+            if e_item = k then
+                rtr_elig <= not t_inh(k);
+            end if;
+
+            if rx_k = k then
+                rx_gone <= t_inh(k) or not t_due(k);
+            end if;
+
+        end loop;
+
+    end process rx_flags_proc;
+
     rx_proc : process (clk_i, rst_n_i) is
     begin
 
@@ -979,33 +1428,47 @@ begin
             rx_done_q  <= '0';
             rx_reply_q <= '0';
             rx_unexp_q <= '0';
-            ev_rx_q    <= rx_store;
-            ev_len_q   <= rx_len;
-            ev_rtr_q   <= rx_rtr_hit;
+            ev_rx_q    <= x_store;
+            ev_len_q   <= x_len;
+            ev_rtr_q   <= x_rtr;
 
             case rx_st is
 
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
+                        if e_st = E_IDLE then
+                            rx_st <= S_RX_MATCH;
+                        else
+                            rx_st <= S_RX_WAIT;
+                        end if;
+                    end if;
+
+                when S_RX_WAIT =>
+
+                    if e_st = E_IDLE then
                         rx_st <= S_RX_MATCH;
                     end if;
 
                 when S_RX_MATCH =>
 
-                    rx_st <= S_RX_IDLE;
-                    rx_k  <= m_t_idx;
-                    if rx_rtr_hit = '0' then
-                        rx_done_q  <= '1';
-                        rx_unexp_q <= rx_unexp;
-                    elsif rtr_elig = '0' then
-                        -- inhibit time running: the reply is sent later (FSM T20)
-                        rx_done_q <= '1';
-                    elsif tx_soon = '1' then
-                        rx_done_q  <= '1';
-                        rx_reply_q <= '1';
-                    else
-                        rx_st <= S_RX_REPLY;
+                    if x_mdone = '1' then
+                        rx_st <= S_RX_IDLE;
+                        if e_item < N_TPDO then
+                            rx_k <= e_item;
+                        end if;
+                        if x_rtr = '0' then
+                            rx_done_q  <= '1';
+                            rx_unexp_q <= not x_match;
+                        elsif rtr_elig = '0' then
+                            -- inhibit time running: the reply is sent later (FSM T20)
+                            rx_done_q <= '1';
+                        elsif tx_soon = '1' then
+                            rx_done_q  <= '1';
+                            rx_reply_q <= '1';
+                        else
+                            rx_st <= S_RX_REPLY;
+                        end if;
                     end if;
 
                 when S_RX_REPLY =>
@@ -1014,7 +1477,7 @@ begin
                         rx_done_q  <= '1';
                         rx_reply_q <= '1';
                         rx_st      <= S_RX_IDLE;
-                    elsif tx_st = S_IDLE and t_elig(rx_k) = '0' then
+                    elsif tx_st = S_IDLE and rx_gone = '1' then
                         -- the request was withdrawn (configuration written) or the channel
                         -- became inhibited: no reply now
                         rx_done_q <= '1';
@@ -1043,109 +1506,113 @@ begin
     end process rx_frame_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- TPDO channels
+    -- Per-channel flags
     -- ---------------------------------------------------------------------------------------------
-    tpdo_proc : process (clk_i, rst_n_i) is
+    flags_proc : process (clk_i, rst_n_i) is
 
         variable host_k : boolean;
+        variable ack_k  : boolean;
+        variable eng_k  : boolean;
         variable due_v  : std_logic;
         variable new_v  : std_logic;
-        variable late_v : boolean;
+        variable lat_v  : std_logic;
 
     begin
 
         if rst_n_i = '0' then
-            t_cob     <= (others => (others => '0'));
-            t_valid   <= (others => '0');
-            t_rtr     <= (others => '0');
-            t_dlc     <= (others => (others => '0'));
-            t_tt      <= (others => (others => '0'));
-            t_inh     <= (others => (others => '0'));
+            t_sync    <= (others => '0');
             t_act     <= (others => '0');
             t_ok      <= (others => '0');
             t_pend    <= (others => '0');
             t_due     <= (others => '0');
             t_new     <= (others => '0');
-            t_left    <= (others => (others => '0'));
-            t_seq     <= (others => (others => '0'));
-            t_late    <= (others => (others => '0'));
-            t_inh_cnt <= (others => (others => '0'));
-            t_inh_1st <= (others => '0');
-            t_late_ev <= (others => '0');
+            t_ns      <= (others => '0');
+            t_inh     <= (others => '0');
+            t_latev   <= (others => '0');
+            r_new     <= (others => '0');
+            r_ok      <= (others => '0');
+            r_poll    <= (others => '0');
+            r_got     <= (others => '0');
+            r_gs      <= (others => '0');
+            i_sp      <= (others => '0');
+            i_cfgn    <= (others => '0');
+            i_stale   <= (others => '0');
+            i_cv      <= (others => '0');
+            i_fresh   <= (others => '1');
             ev_late_q <= '0';
-            lscan     <= 0;
-            win_q     <= '0';
-            pre_us    <= 0;
-            tick100   <= '0';
+            ev_miss_q <= '0';
         elsif rising_edge(clk_i) then
-            ev_late_q <= '0';
-            win_q     <= window_open_i;
+            ev_late_q <= x_late;
+            ev_miss_q <= x_miss;
 
-            -- 100 us prescaler of the inhibit times
-            tick100 <= '0';
-            if tick_us_i = '1' then
-                if pre_us = inhibit_unit_us_c - 1 then
-                    pre_us  <= 0;
-                    tick100 <= '1';
-                else
-                    pre_us <= pre_us + 1;
+            -- every item: the engine wrote its state word (lazy resets done), SYNC visit
+            for i in 0 to n_items_c - 1 loop
+
+                eng_k := e_item = i;
+                if x_we = '1' and eng_k then
+                    i_stale(i) <= '0';
+                    i_fresh(i) <= '0';
+                    if e_hit = '0' then
+                        i_cfgn(i) <= '0';
+                    end if;
                 end if;
-            end if;
+                if x_visit = '1' and eng_k then
+                    i_sp(i) <= '0';
+                end if;
+                if clr = '1' then
+                    i_stale(i) <= '1';
+                end if;
+                if c_we = '1' and sel_item = i then
+                    i_cv(i) <= '1';
+                end if;
+
+            end loop;
 
             for k in 0 to N_TPDO - 1 loop
 
-                host_k := sel_rpdo = '0' and sel_ch = k;
+                host_k := sel_t_ok = '1' and sel_ch = k;
+                eng_k  := e_item = k;
                 due_v  := t_due(k);
                 new_v  := t_new(k);
-                late_v := false;
+                lat_v  := t_latev(k);
 
-                if wr_cfg_ok = '1' and host_k then
-                    t_cob(k)   <= reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
-                    t_rtr(k)   <= reg_wdata_i(PDO_CFG_RTR_C);
-                    t_valid(k) <= reg_wdata_i(PDO_CFG_VALID_C);
-                    t_dlc(k)   <= reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C);
-                    t_tt(k)    <= unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C));
-                    t_left(k)  <= unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C));
-                    due_v      := '0';
-                    new_v      := '0';
+                -- sweep visit: DUE of the new SYNC cycle, late event counted, inhibit over
+                if x_visit = '1' and eng_k then
+                    if i_sp(k) = '1' then
+                        due_v := x_due;
+                    end if;
+                    lat_v := '0';
+                    if x_inhc = '1' then
+                        t_inh(k) <= '0';
+                    end if;
                 end if;
-                if wr_inh = '1' and host_k then
-                    t_inh(k) <= unsigned(reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto
-                                                     PDO_INHIBIT_TIME_100US_LO_C));
+                if x_inhs = '1' and eng_k then
+                    t_inh(k) <= '1';
                 end if;
 
-                -- SYNC: pending commits become active; synchronous frames become due
+                -- SYNC: pending commits become active; synchronous channels get their visit
                 if sync_i = '1' then
                     if t_pend(k) = '1' then
                         t_act(k)  <= not t_act(k);
                         t_pend(k) <= '0';
                         t_ok(k)   <= '1';
                     end if;
-                    if t_valid(k) = '1' and t_tt(k) <= tt_sync_max_c then
-                        -- the frame of the previous SYNC was not sent: dropped late
-                        late_v := due_v = '1';
-                        if t_tt(k) = 0 then
-                            due_v := new_v;
-                            new_v := '0';
-                        elsif t_left(k) <= 1 then
-                            due_v     := '1';
-                            t_left(k) <= t_tt(k);
-                        else
-                            due_v     := '0';
-                            t_left(k) <= t_left(k) - 1;
-                        end if;
+                    if t_sync(k) = '1' then
+                        i_sp(k) <= '1';
                     end if;
-                elsif win_end = '1' and t_valid(k) = '1' and t_tt(k) <= tt_sync_max_c
-                      and due_v = '1' then
+                    t_ns(k) <= new_v;
+                    new_v   := '0';
+                elsif win_end = '1' and t_sync(k) = '1' and due_v = '1'
+                      and not (started = '1' and p = k) then
                     -- end of the synchronous window: frames not started are dropped
-                    due_v  := '0';
-                    late_v := true;
+                    due_v := '0';
+                    lat_v := '1';
                 end if;
 
                 -- host commands
                 if wr_cmd = '1' and host_k then
                     if reg_wdata_i(PDO_CMD_COMMIT_C) = '1' then
-                        if t_tt(k) >= tt_rtr_event_c then
+                        if sel_tt >= tt_rtr_event_c then
                             -- 253..255: the written bank is active at once
                             t_act(k)  <= not t_act(k);
                             t_pend(k) <= '0';
@@ -1156,143 +1623,67 @@ begin
                         else
                             t_pend(k) <= '1';
                         end if;
-                        if t_tt(k) = 0 then
+                        if sel_tt = 0 then
                             new_v := '1';
                         end if;
                     end if;
                     if reg_wdata_i(PDO_CMD_TRIGGER_C) = '1' then
-                        if t_tt(k) = 0 then
+                        if sel_tt = 0 then
                             new_v := '1';
-                        elsif t_tt(k) >= tt_event_c and t_valid(k) = '1' then
+                        elsif sel_tt >= tt_event_c and shc_view(cw_valid_c) = '1' then
                             due_v := '1';
                         end if;
                     end if;
                 end if;
 
                 -- remote request
-                if rtr_set(k) = '1' then
+                if x_rtr = '1' and eng_k then
                     due_v := '1';
                 end if;
 
                 -- a frame starting now serves every request made at this edge: its data are
                 -- read from the active bank after it
-                if t_start(k) = '1' then
-                    due_v  := '0';
-                    late_v := false;
+                if started = '1' and p = k then
+                    due_v := '0';
                 end if;
 
-                t_due(k) <= due_v;
-                t_new(k) <= new_v;
-
-                -- late events into ev_late_o strobes and LATE counts, one per cycle
-                if clr = '1' then
-                    t_late(k) <= (others => '0');
-                elsif lscan = k and t_late_ev(k) = '1' then
-                    t_late(k) <= late_next;
-                end if;
-                if lscan = k and t_late_ev(k) = '1' then
-                    ev_late_q    <= '1';
-                    t_late_ev(k) <= '0';
-                end if;
-                if late_v then
-                    t_late_ev(k) <= '1';
-                end if;
-
-                -- frame taken: sequence number, inhibit time (event types)
-                if t_ack(k) = '1' then
-                    t_seq(k) <= tx_seq_next;
-                    if t_tt(k) >= tt_event_c and t_inh(k) /= 0 then
-                        -- TIME_100US full ticks after the first (partial) one
-                        t_inh_cnt(k) <= t_inh(k);
-                        t_inh_1st(k) <= '1';
+                -- configuration written: run-time state reset (data, pending commit and
+                -- inhibit time kept)
+                if wr_cfg_ok = '1' and host_k then
+                    if reg_wdata_i(PDO_CFG_VALID_C) = '1'
+                       and unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C))
+                       <= tt_sync_max_c then
+                        t_sync(k) <= '1';
+                    else
+                        t_sync(k) <= '0';
                     end if;
-                elsif tick100 = '1' then
-                    if t_inh_1st(k) = '1' then
-                        t_inh_1st(k) <= '0';
-                    elsif t_inh_cnt(k) /= 0 then
-                        t_inh_cnt(k) <= t_inh_cnt(k) - 1;
-                    end if;
+                    due_v     := '0';
+                    new_v     := '0';
+                    i_sp(k)   <= '0';
+                    i_cfgn(k) <= '1';
                 end if;
+
+                t_due(k)   <= due_v;
+                t_new(k)   <= new_v;
+                t_latev(k) <= lat_v;
 
             end loop;
 
-            if lscan = N_TPDO - 1 then
-                lscan <= 0;
-            else
-                lscan <= lscan + 1;
-            end if;
-        end if;
-
-    end process tpdo_proc;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- RPDO channels
-    -- ---------------------------------------------------------------------------------------------
-    rpdo_proc : process (clk_i, rst_n_i) is
-
-        variable host_k : boolean;
-        variable ack_k  : boolean;
-        variable poll_v : std_logic;
-        variable got_v  : std_logic;
-        variable new_v  : std_logic;
-        variable miss_v : boolean;
-
-    begin
-
-        if rst_n_i = '0' then
-            r_cob     <= (others => (others => '0'));
-            r_valid   <= (others => '0');
-            r_rtr     <= (others => '0');
-            r_dlc     <= (others => (others => '0'));
-            r_tt      <= (others => (others => '0'));
-            r_new     <= (others => '0');
-            r_ok      <= (others => '0');
-            r_seq     <= (others => (others => '0'));
-            r_len     <= (others => (others => '0'));
-            r_miss    <= (others => (others => '0'));
-            r_armed   <= (others => '0');
-            r_got     <= (others => '0');
-            r_left    <= (others => (others => '0'));
-            r_poll    <= (others => '0');
-            r_miss_ev <= (others => '0');
-            ev_miss_q <= '0';
-            mscan     <= 0;
-        elsif rising_edge(clk_i) then
-            ev_miss_q <= '0';
-
             for k in 0 to N_RPDO - 1 loop
 
-                host_k := sel_rpdo = '1' and sel_ch = k;
-                poll_v := r_poll(k);
-                got_v  := r_got(k);
-                new_v  := r_new(k);
-                miss_v := false;
+                host_k := sel_r_ok = '1' and sel_ch = k;
+                eng_k  := e_item = N_TPDO + k;
 
-                if wr_cfg_ok = '1' and host_k then
-                    r_cob(k)   <= reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
-                    r_rtr(k)   <= reg_wdata_i(PDO_CFG_RTR_C);
-                    r_valid(k) <= reg_wdata_i(PDO_CFG_VALID_C);
-                    r_dlc(k)   <= reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C);
-                    r_tt(k)    <= unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C));
-                    r_armed(k) <= '0';
-                    got_v      := '0';
-                    poll_v     := '0';
+                -- SYNC: the PDO flag of the closing period moves to the visit
+                if sync_i = '1' then
+                    i_sp(N_TPDO + k) <= '1';
+                    r_gs(k)          <= r_got(k);
+                    r_got(k)         <= '0';
+                elsif x_visit = '1' and eng_k then
+                    r_gs(k) <= '0';
                 end if;
-
-                -- SYNC: poll; check the interval of a synchronous RPDO
-                if sync_i = '1' and r_valid(k) = '1' then
-                    if r_rtr(k) = '1' then
-                        poll_v := '1';
-                    end if;
-                    if r_armed(k) = '1' and r_tt(k) /= 0 and r_tt(k) <= tt_sync_max_c then
-                        if r_left(k) <= 1 then
-                            miss_v    := got_v = '0';
-                            got_v     := '0';
-                            r_left(k) <= r_tt(k);
-                        else
-                            r_left(k) <= r_left(k) - 1;
-                        end if;
-                    end if;
+                if x_poll = '1' and eng_k then
+                    r_poll(k) <= '1';
                 end if;
 
                 -- acknowledge NEW: PDO_SEL.ACK with the selection, or PDO_RX_NEW written 1
@@ -1301,60 +1692,33 @@ begin
                          and reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)
                          = std_logic_vector(to_unsigned(k, 5));
                 if ack_k or (wr_rxnew = '1' and reg_wdata_i(k) = '1') then
-                    new_v := '0';
+                    r_new(k) <= '0';
                 end if;
 
                 -- reception (after the acknowledge: a PDO stored now stays NEW)
-                if rx_store = '1' and m_r_idx = k then
-                    r_seq(k) <= rx_seq_next;
+                if x_store = '1' and eng_k then
+                    r_new(k) <= '1';
                     r_ok(k)  <= '1';
-                    new_v    := '1';
-                    got_v    := '1';
-                    if r_armed(k) = '0' then
-                        -- the monitor starts at the SYNC that caused this PDO
-                        r_armed(k) <= '1';
-                        r_left(k)  <= r_tt(k);
-                    end if;
+                    r_got(k) <= '1';
                 end if;
 
-                if r_start(k) = '1' then
-                    poll_v := '0';
+                if started = '1' and p = N_TPDO + k then
+                    r_poll(k) <= '0';
                 end if;
 
-                r_poll(k) <= poll_v;
-                r_got(k)  <= got_v;
-                r_new(k)  <= new_v;
-
-                if clr = '1' then
-                    r_len(k) <= (others => '0');
-                elsif len_set(k) = '1' then
-                    r_len(k) <= rx_len_next;
-                end if;
-
-                -- missed events into ev_missed_o strobes and MISSED counts, one per cycle
-                if clr = '1' then
-                    r_miss(k) <= (others => '0');
-                elsif mscan = k and r_miss_ev(k) = '1' then
-                    r_miss(k) <= miss_next;
-                end if;
-                if mscan = k and r_miss_ev(k) = '1' then
-                    ev_miss_q    <= '1';
-                    r_miss_ev(k) <= '0';
-                end if;
-                if miss_v then
-                    r_miss_ev(k) <= '1';
+                if wr_cfg_ok = '1' and host_k then
+                    r_got(k)         <= '0';
+                    r_gs(k)          <= '0';
+                    r_poll(k)        <= '0';
+                    i_sp(N_TPDO + k) <= '0';
+                    i_cfgn(N_TPDO + k) <= '1';
                 end if;
 
             end loop;
 
-            if mscan = N_RPDO - 1 then
-                mscan <= 0;
-            else
-                mscan <= mscan + 1;
-            end if;
         end if;
 
-    end process rpdo_proc;
+    end process flags_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- Global counters (PDO_CNT_*): saturating, counted from the strobes
@@ -1396,112 +1760,105 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (all) is
+    rd_proc : process (clk_i) is
 
-        -- the address is copied to a variable so that process (all) is sensitive to it
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);
-        variable t : std_logic_vector(31 downto 0);
+        variable c : std_logic_vector(cw_w_c - 1 downto 0);
+        variable s : std_logic_vector(47 downto 0);
+        variable t : std_logic;
+        variable r : std_logic;
 
-        procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
-        begin
-
-            if is_off(a, n) then
-                v := v or word;
-            end if;
-
-        end procedure put;
-
-    begin
-
-        a := reg_addr_i;
-        v := (others => '0');
-
-        put(off_sel_c,
-            at(std_logic_vector(to_unsigned(sel_ch, 5)), PDO_SEL_CH_HI_C, PDO_SEL_CH_LO_C)
-            or at(sel_rpdo, PDO_SEL_RPDO_C) or at(sel_ref, PDO_SEL_REFUSED_C));
-        put(off_info_c,
-            at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
-                  PDO_INFO_N_TPDO_LO_C)
-            or at(std_logic_vector(to_unsigned(N_RPDO, 6)), PDO_INFO_N_RPDO_HI_C,
-                     PDO_INFO_N_RPDO_LO_C));
-
-        -- selected TPDO
-        for k in 0 to N_TPDO - 1 loop
-
-            if sel_rpdo = '0' and sel_ch = k then
-                t := at(t_cob(k), PDO_CFG_COB_ID_HI_C, PDO_CFG_COB_ID_LO_C)
-                     or at(t_rtr(k), PDO_CFG_RTR_C) or at(t_valid(k), PDO_CFG_VALID_C)
-                     or at(t_dlc(k), PDO_CFG_DLC_HI_C, PDO_CFG_DLC_LO_C)
-                     or at(std_logic_vector(t_tt(k)), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
-                put(off_cfg_c, t);
-                put(off_inh_c,
-                    at(std_logic_vector(t_inh(k)), PDO_INHIBIT_TIME_100US_HI_C,
-                          PDO_INHIBIT_TIME_100US_LO_C));
-                put(off_lo_c, stg_view(31 downto 0));
-                put(off_hi_c, stg_view(63 downto 32));
-                if t_inh_cnt(k) /= 0 or t_inh_1st(k) = '1' then
-                    t := at('1', PDO_CMD_INHIBITED_C);
-                else
-                    t := (others => '0');
-                end if;
-                put(off_cmd_c,
-                    t or at(t_pend(k), PDO_CMD_PENDING_C) or at(t_due(k), PDO_CMD_DUE_C));
-                put(off_seq_c, at(std_logic_vector(t_seq(k)), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C));
-                put(off_late_c,
-                    at(std_logic_vector(t_late(k)), PDO_LATE_LATE_HI_C, PDO_LATE_LATE_LO_C));
-            end if;
-
-        end loop;
-
-        -- selected RPDO (data, NEW, sequence and SYNC count from the snapshot)
-        for k in 0 to N_RPDO - 1 loop
-
-            if sel_rpdo = '1' and sel_ch = k then
-                t := at(r_cob(k), PDO_CFG_COB_ID_HI_C, PDO_CFG_COB_ID_LO_C)
-                     or at(r_rtr(k), PDO_CFG_RTR_C) or at(r_valid(k), PDO_CFG_VALID_C)
-                     or at(r_dlc(k), PDO_CFG_DLC_HI_C, PDO_CFG_DLC_LO_C)
-                     or at(std_logic_vector(r_tt(k)), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
-                put(off_cfg_c, t);
-                if snap_ok = '1' then
-                    put(off_lo_c, rr_q(31 downto 0));
-                    put(off_hi_c, rr_q(63 downto 32));
-                    put(off_seq_c,
-                        at(rr_q(79 downto 64), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C)
-                        or at(rr_q(87 downto 80), PDO_SEQ_SYNC_COUNT_HI_C,
-                                 PDO_SEQ_SYNC_COUNT_LO_C));
-                end if;
-                put(off_cmd_c, at(snap_new, PDO_CMD_NEW_C) or at(r_poll(k), PDO_CMD_POLL_DUE_C));
-                put(off_err_c,
-                    at(std_logic_vector(r_len(k)), PDO_ERR_LEN_ERR_HI_C, PDO_ERR_LEN_ERR_LO_C)
-                    or at(std_logic_vector(r_miss(k)), PDO_ERR_MISSED_HI_C,
-                             PDO_ERR_MISSED_LO_C));
-            end if;
-
-        end loop;
-
-        put(off_rx_new_c, at(r_new, N_RPDO - 1, 0));
-        put(off_tx_due_c, at(t_due, N_TPDO - 1, 0));
-        put(off_tx_pend_c, at(t_pend, N_TPDO - 1, 0));
-
-        for i in 0 to cnt_num_c - 1 loop
-
-            put(off_cnt_c + i, std_logic_vector(cnt(i)));
-
-        end loop;
-
-        rd_mux <= v;
-
-    end process read_mux_proc;
-
-    rd_data_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
-            rdata_q <= rd_mux;
+            a := reg_addr_i;
+            c := shc_view;
+            s := shs_view;
+            t := sel_t_ok;
+            r := sel_r_ok;
+            v := (others => '0');
+
+            if is_off(a, off_sel_c) then
+                v := at(std_logic_vector(to_unsigned(sel_ch, 5)), PDO_SEL_CH_HI_C, PDO_SEL_CH_LO_C)
+                     or at(sel_rpdo, PDO_SEL_RPDO_C) or at(sel_ref, PDO_SEL_REFUSED_C);
+            elsif is_off(a, off_info_c) then
+                v := at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
+                        PDO_INFO_N_TPDO_LO_C)
+                     or at(std_logic_vector(to_unsigned(N_RPDO, 6)), PDO_INFO_N_RPDO_HI_C,
+                           PDO_INFO_N_RPDO_LO_C);
+            elsif is_off(a, off_cfg_c) then
+                if t = '1' or r = '1' then
+                    v := at(c(cw_cob_hi_c downto cw_cob_lo_c), PDO_CFG_COB_ID_HI_C,
+                            PDO_CFG_COB_ID_LO_C)
+                         or at(c(cw_rtr_c), PDO_CFG_RTR_C) or at(c(cw_valid_c), PDO_CFG_VALID_C)
+                         or at(c(cw_dlc_hi_c downto cw_dlc_lo_c), PDO_CFG_DLC_HI_C,
+                               PDO_CFG_DLC_LO_C)
+                         or at(c(cw_tt_hi_c downto cw_tt_lo_c), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
+                end if;
+            elsif is_off(a, off_inh_c) then
+                if t = '1' then
+                    v := at(c(cw_inh_hi_c downto cw_inh_lo_c), PDO_INHIBIT_TIME_100US_HI_C,
+                            PDO_INHIBIT_TIME_100US_LO_C);
+                end if;
+            elsif is_off(a, off_lo_c) then
+                if t = '1' then
+                    v := stg_view(31 downto 0);
+                elsif r = '1' and snap_ok = '1' then
+                    v := rr_q(31 downto 0);
+                end if;
+            elsif is_off(a, off_hi_c) then
+                if t = '1' then
+                    v := stg_view(63 downto 32);
+                elsif r = '1' and snap_ok = '1' then
+                    v := rr_q(63 downto 32);
+                end if;
+            elsif is_off(a, off_cmd_c) then
+                if t = '1' then
+                    v := at(sel_inh, PDO_CMD_INHIBITED_C) or at(sel_pend, PDO_CMD_PENDING_C)
+                         or at(sel_due, PDO_CMD_DUE_C);
+                elsif r = '1' then
+                    v := at(snap_new, PDO_CMD_NEW_C) or at(sel_poll, PDO_CMD_POLL_DUE_C);
+                end if;
+            elsif is_off(a, off_seq_c) then
+                if t = '1' then
+                    v := at(s(15 downto 0), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C);
+                elsif r = '1' and snap_ok = '1' then
+                    v := at(rr_q(79 downto 64), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C)
+                         or at(rr_q(87 downto 80), PDO_SEQ_SYNC_COUNT_HI_C,
+                               PDO_SEQ_SYNC_COUNT_LO_C);
+                end if;
+            elsif is_off(a, off_err_c) then
+                if r = '1' then
+                    v := at(s(31 downto 16), PDO_ERR_LEN_ERR_HI_C, PDO_ERR_LEN_ERR_LO_C)
+                         or at(s(47 downto 32), PDO_ERR_MISSED_HI_C, PDO_ERR_MISSED_LO_C);
+                end if;
+            elsif is_off(a, off_late_c) then
+                if t = '1' then
+                    v := at(s(31 downto 16), PDO_LATE_LATE_HI_C, PDO_LATE_LATE_LO_C);
+                end if;
+            elsif is_off(a, off_rx_new_c) then
+                v := at(r_new, N_RPDO - 1, 0);
+            elsif is_off(a, off_tx_due_c) then
+                v := at(t_due, N_TPDO - 1, 0);
+            elsif is_off(a, off_tx_pend_c) then
+                v := at(t_pend, N_TPDO - 1, 0);
+            else
+
+                for i in 0 to cnt_num_c - 1 loop
+
+                    if is_off(a, off_cnt_c + i) then
+                        v := std_logic_vector(cnt(i));
+                    end if;
+
+                end loop;
+
+            end if;
+
+            rdata_q <= v;
         end if;
 
-    end process rd_data_proc;
+    end process rd_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- Outputs
