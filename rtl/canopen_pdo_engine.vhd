@@ -174,6 +174,12 @@ architecture rtl of canopen_pdo_engine is
     function check_config return boolean is
     begin
 
+        assert cw_inh_hi_c - cw_inh_lo_c = PDO_INHIBIT_TIME_100US_HI_C - PDO_INHIBIT_TIME_100US_LO_C
+               and cw_tt_hi_c - cw_tt_lo_c = PDO_CFG_TT_HI_C - PDO_CFG_TT_LO_C
+               and cw_dlc_lo_c = cw_valid_c + 1 and cw_valid_c = cw_rtr_c + 1
+               and cw_rtr_c = cw_cob_hi_c + 1 and cw_cob_lo_c = 0 and cw_w_c = cw_inh_hi_c + 1
+            report "canopen_pdo_engine: configuration word layout and concatenation differ"
+            severity failure;
         assert REG_PDO_WIN_WORDS_C = 64
             report "canopen_pdo_engine: the register window must be 64 words (6-bit offset)"
             severity failure;
@@ -287,9 +293,9 @@ architecture rtl of canopen_pdo_engine is
     );
 
     type eng_state_t is (
-        E_IDLE,  -- picks the next operation, its RAM read address is applied
-        E_EXEC,  -- RAM words of the item at the outputs: computed, written back at the edge
-        E_MATCH  -- receive match: one item per cycle until a match or the last item
+        E_IDLE, -- picks the next operation, its RAM read address is applied
+        E_EXEC, -- RAM words of the item at the outputs: computed, written back at the edge
+        E_MATCH -- receive match: one item per cycle until a match or the last item
     );
 
     type eng_op_t is (
@@ -392,21 +398,21 @@ architecture rtl of canopen_pdo_engine is
     -- the frame the receive match would start with is a remote frame
     signal rx_rtr_now : std_logic;
     -- results of the item at the RAM outputs (E_EXEC / E_MATCH)
-    signal x_we    : std_logic;                           -- state word written back
+    signal x_we    : std_logic;                             -- state word written back
     signal x_wd    : std_logic_vector(sw_w_c - 1 downto 0); -- the word
-    signal x_visit : std_logic;                           -- sweep visit of e_item
-    signal x_due   : std_logic;                           -- TPDO: DUE after the SYNC visit
-    signal x_late  : std_logic;                           -- TPDO: a late frame counted
-    signal x_inhc  : std_logic;                           -- TPDO: inhibit time over
-    signal x_inhs  : std_logic;                           -- TPDO: inhibit time started
-    signal x_poll  : std_logic;                           -- RPDO: RTR poll due
-    signal x_miss  : std_logic;                           -- RPDO: a missed cycle counted
-    signal x_match : std_logic;                           -- E_MATCH: the item takes the frame
-    signal x_store : std_logic;                           -- ... a data frame, stored
-    signal x_len   : std_logic;                           -- ... a data frame, wrong DLC
-    signal x_rtr   : std_logic;                           -- ... a remote frame for a TPDO
-    signal x_mdone : std_logic;                           -- E_MATCH ends (match or last item)
-    signal x_tseq  : std_logic_vector(15 downto 0);       -- SEQ written (store)
+    signal x_visit : std_logic;                             -- sweep visit of e_item
+    signal x_due   : std_logic;                             -- TPDO: DUE after the SYNC visit
+    signal x_late  : std_logic;                             -- TPDO: a late frame counted
+    signal x_inhc  : std_logic;                             -- TPDO: inhibit time over
+    signal x_inhs  : std_logic;                             -- TPDO: inhibit time started
+    signal x_poll  : std_logic;                             -- RPDO: RTR poll due
+    signal x_miss  : std_logic;                             -- RPDO: a missed cycle counted
+    signal x_match : std_logic;                             -- E_MATCH: the item takes the frame
+    signal x_store : std_logic;                             -- ... a data frame, stored
+    signal x_len   : std_logic;                             -- ... a data frame, wrong DLC
+    signal x_rtr   : std_logic;                             -- ... a remote frame for a TPDO
+    signal x_mdone : std_logic;                             -- E_MATCH ends (match or last item)
+    signal x_tseq  : std_logic_vector(15 downto 0);         -- SEQ written (store)
 
     -- ---------------------------------------------------------------------------------------------
     -- Housekeeping sweep
@@ -594,6 +600,7 @@ begin
     -- Frame eligibility (TPDO: due, not inhibited, no SYNC visit pending; RPDO: poll due) and
     -- the flags of the selected channel
     -- ---------------------------------------------------------------------------------------------
+
     elig_t_gen : for k in 0 to N_TPDO - 1 generate
         i_elig(k) <= t_due(k) and not t_inh(k) and not i_sp(k);
     end generate elig_t_gen;
@@ -709,6 +716,7 @@ begin
         variable f1_v   : std_logic;
         variable match  : boolean;
         variable k      : natural range 0 to n_items_c - 1;
+        variable seq1_v : std_logic_vector(15 downto 0);
 
     begin
 
@@ -760,7 +768,8 @@ begin
         f1_v   := w(sw_f1_c);
         acc_v  := w(sw_f2_c);
 
-        x_tseq <= std_logic_vector(unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+        seq1_v := std_logic_vector(unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+        x_tseq <= seq1_v;
 
         if e_st = E_EXEC then
 
@@ -826,10 +835,10 @@ begin
 
                 when OP_TXACK =>
 
-                    x_we                                  <= '1';
-                    w(sw_seq_hi_c downto sw_seq_lo_c) := std_logic_vector(
-                        unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
-                    if tt_v >= tt_event_c and unsigned(ca_q(cw_inh_hi_c downto cw_inh_lo_c)) /= 0 then
+                    x_we                              <= '1';
+                    w(sw_seq_hi_c downto sw_seq_lo_c) := seq1_v;
+                    if tt_v >= tt_event_c
+                       and unsigned(ca_q(cw_inh_hi_c downto cw_inh_lo_c)) /= 0 then
                         -- TIME_100US full ticks after the first (partial) one
                         c2_v   := unsigned(ca_q(cw_inh_hi_c downto cw_inh_lo_c));
                         f1_v   := '1';
@@ -853,10 +862,9 @@ begin
                 if rx_rtr_q = '1' then
                     x_rtr <= '1';
                 elsif ca_q(cw_dlc_hi_c downto cw_dlc_lo_c) = rx_dlc_q then
-                    x_store                               <= '1';
-                    x_we                                  <= '1';
-                    w(sw_seq_hi_c downto sw_seq_lo_c) := std_logic_vector(
-                        unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
+                    x_store                           <= '1';
+                    x_we                              <= '1';
+                    w(sw_seq_hi_c downto sw_seq_lo_c) := seq1_v;
                     if f1_v = '0' then
                         -- the monitor starts at the SYNC that caused this PDO (a SYNC visit
                         -- still pending for the item takes one off)
@@ -997,20 +1005,15 @@ begin
     cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view) is
     begin
 
-        c_wd <= shc_view;
-
         if wr_cfg = '1' then
-            c_wd(cw_cob_hi_c downto cw_cob_lo_c) <=
-                reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
-            c_wd(cw_rtr_c)                       <= reg_wdata_i(PDO_CFG_RTR_C);
-            c_wd(cw_valid_c)                     <= reg_wdata_i(PDO_CFG_VALID_C);
-            c_wd(cw_dlc_hi_c downto cw_dlc_lo_c) <=
-                reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C);
-            c_wd(cw_tt_hi_c downto cw_tt_lo_c)   <=
-                reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C);
+            c_wd <= shc_view(cw_inh_hi_c downto cw_inh_lo_c)
+                    & reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C)
+                    & reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)
+                    & reg_wdata_i(PDO_CFG_VALID_C) & reg_wdata_i(PDO_CFG_RTR_C)
+                    & reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
         else
-            c_wd(cw_inh_hi_c downto cw_inh_lo_c) <=
-                reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C);
+            c_wd <= reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C)
+                    & shc_view(cw_tt_hi_c downto cw_cob_lo_c);
         end if;
 
     end process cfg_wd_proc;
@@ -1224,7 +1227,7 @@ begin
             end if;
             if wr_sel = '1' then
                 sel_ch   <= to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto
-                                                             PDO_SEL_CH_LO_C)));
+                                                            PDO_SEL_CH_LO_C)));
                 sel_rpdo <= reg_wdata_i(PDO_SEL_RPDO_C);
                 sel_item <= new_item;
                 sel_t_ok <= new_ok and not reg_wdata_i(PDO_SEL_RPDO_C);
@@ -1707,10 +1710,10 @@ begin
                 end if;
 
                 if wr_cfg_ok = '1' and host_k then
-                    r_got(k)         <= '0';
-                    r_gs(k)          <= '0';
-                    r_poll(k)        <= '0';
-                    i_sp(N_TPDO + k) <= '0';
+                    r_got(k)           <= '0';
+                    r_gs(k)            <= '0';
+                    r_poll(k)          <= '0';
+                    i_sp(N_TPDO + k)   <= '0';
                     i_cfgn(N_TPDO + k) <= '1';
                 end if;
 
@@ -1786,14 +1789,14 @@ begin
                 v := at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
                         PDO_INFO_N_TPDO_LO_C)
                      or at(std_logic_vector(to_unsigned(N_RPDO, 6)), PDO_INFO_N_RPDO_HI_C,
-                           PDO_INFO_N_RPDO_LO_C);
+                             PDO_INFO_N_RPDO_LO_C);
             elsif is_off(a, off_cfg_c) then
                 if t = '1' or r = '1' then
                     v := at(c(cw_cob_hi_c downto cw_cob_lo_c), PDO_CFG_COB_ID_HI_C,
                             PDO_CFG_COB_ID_LO_C)
                          or at(c(cw_rtr_c), PDO_CFG_RTR_C) or at(c(cw_valid_c), PDO_CFG_VALID_C)
                          or at(c(cw_dlc_hi_c downto cw_dlc_lo_c), PDO_CFG_DLC_HI_C,
-                               PDO_CFG_DLC_LO_C)
+                                 PDO_CFG_DLC_LO_C)
                          or at(c(cw_tt_hi_c downto cw_tt_lo_c), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
                 end if;
             elsif is_off(a, off_inh_c) then
@@ -1826,7 +1829,7 @@ begin
                 elsif r = '1' and snap_ok = '1' then
                     v := at(rr_q(79 downto 64), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C)
                          or at(rr_q(87 downto 80), PDO_SEQ_SYNC_COUNT_HI_C,
-                               PDO_SEQ_SYNC_COUNT_LO_C);
+                                 PDO_SEQ_SYNC_COUNT_LO_C);
                 end if;
             elsif is_off(a, off_err_c) then
                 if r = '1' then

@@ -691,11 +691,11 @@ async def run_rpdo_reception_200_syncs(dut):
     """Purpose: RPDO reception from three slaves over 200 SYNC cycles.
 
     Verifies: each slave's TPDO1 (a new position every SYNC) is stored with rx_done_o 2 + k
-    cycles after rx_valid_i (RPDO k; one more when the engine was busy); every 10th cycle the host's snapshot of each channel equals the
-    slave's last frame on the bus, with SEQ = frames so far, SYNC_COUNT = sync_count_i of the
-    SYNC before it, NEW set (acknowledged by the previous read); after 200 SYNCs: SEQ = 200 on
-    each channel, 600 ev_rx_o strobes = PDO_CNT_RX, no length error, no missed cycle, nothing
-    unexpected.
+    cycles after rx_valid_i (RPDO k; one more when the engine was busy); every 10th cycle the
+    host's snapshot of each channel equals the slave's last frame on the bus, with SEQ =
+    frames so far, SYNC_COUNT = sync_count_i of the SYNC before it, NEW set (acknowledged by
+    the previous read); after 200 SYNCs: SEQ = 200 on each channel, 600 ev_rx_o strobes =
+    PDO_CNT_RX, no length error, no missed cycle, nothing unexpected.
     """
     tb = TB(dut)
     for n, slave in tb.slaves.items():
