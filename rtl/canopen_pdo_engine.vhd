@@ -168,8 +168,8 @@ architecture rtl of canopen_pdo_engine is
     end function larger;
 
     -- bound of rx_valid_i -> rx_done_o [cycles] (docs/canopen_pdo_engine.md): a remote frame
-    -- N_TPDO + 7, a data frame N_RPDO + 2
-    constant rx_bound_c : positive := larger(N_TPDO + 7, N_RPDO + 2);
+    -- N_TPDO + 8, a data frame N_RPDO + 2
+    constant rx_bound_c : positive := larger(N_TPDO + 8, N_RPDO + 2);
 
     function check_config return boolean is
     begin
@@ -676,8 +676,7 @@ begin
                 elsif tx_st = S_READ then
                     e_gop <= OP_TXRD;
                     e_ra  <= txi;
-                elsif sw_busy = '1' and rx_st /= S_RX_REPLY then
-                    -- (no sweep item while an RTR reply is being started)
+                elsif sw_busy = '1' then
                     e_gop <= OP_SWEEP;
                     e_ra  <= sw_ptr;
                 end if;

@@ -14,7 +14,7 @@ a ``requester`` node that injects RTRs and stray frames. The host side is the re
 
 Checkers, all written from the documented behaviour, not from the RTL:
 
-* every received frame gets ``rx_done_o`` within max(N_TPDO + 7, N_RPDO + 2) cycles (the
+* every received frame gets ``rx_done_o`` within max(N_TPDO + 8, N_RPDO + 2) cycles (the
   engine compares the frame with one channel per cycle); ``rx_reply_o``
   comes with ``tx_req_o`` = 1 and never with ``rx_unexpected_o``;
 * a frame on ``tx_req_o`` never changes and is never withdrawn before ``tx_ack_i``;
@@ -216,7 +216,7 @@ class TB:
         self.dut = dut
         self.n_tpdo = param("N_TPDO")
         self.n_rpdo = param("N_RPDO")
-        self.rx_bound = max(self.n_tpdo + 7, self.n_rpdo + 2)
+        self.rx_bound = max(self.n_tpdo + 8, self.n_rpdo + 2)
         start_clock(dut.clk_i, CLK_HZ)
         self.sched = Scheduler()
         self.sched.run_until(sim_time_ps())
