@@ -903,7 +903,8 @@ async def run_queue_late_and_no_loss(dut):
     started by each window end (3 per window, minus the presented one: ev_late_o strobes,
     PDO_CNT_LATE, per-channel LATE), keeps the RTR polls and a TT 255 trigger made during the
     stall (sent after it); afterwards every SYNC again gives exactly 5 frames; with no window
-    (window_open_i low) the TPDOs still due at the next SYNC are counted late.
+    (window_open_i low) the TPDOs still due at the next SYNC are counted late, per channel
+    counted from 0 after PDO_CTRL.CLR_COUNTERS.
     """
     tb = TB(dut)
     await tb.start(slave_tpdos=False)
@@ -955,6 +956,8 @@ async def run_queue_late_and_no_loss(dut):
     # no window: late when still due at the next SYNC
     await host.pdo_clear_counters()
     assert (await tb.counters())["late"] == 0
+    # CLR_COUNTERS also clears every channel's LATE (counted from 0 again below)
+    assert [(await host.tpdo_status(ch))["late"] for ch in range(3)] == [0, 0, 0]
     tb.window_us = 0
     await tb.at_phase(900)
     n_tx = len(tb.tx_log)
@@ -965,6 +968,8 @@ async def run_queue_late_and_no_loss(dut):
     await Timer(600, "us")
     stuck = tb.tx_log[n_tx].msg.arbitration_id
     assert (await tb.counters())["late"] == 3 - (stuck in (0x201, 0x202, 0x203))
+    lates = [(await host.tpdo_status(ch))["late"] for ch in range(3)]
+    assert lates == [1 - (0x201 + ch == stuck) for ch in range(3)], (lates, hex(stuck))
     tb.sync_stop()
 
 
