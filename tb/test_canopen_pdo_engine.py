@@ -14,7 +14,8 @@ a ``requester`` node that injects RTRs and stray frames. The host side is the re
 
 Checkers, all written from the documented behaviour, not from the RTL:
 
-* every received frame gets ``rx_done_o`` within 4 + N_TPDO + N_RPDO cycles; ``rx_reply_o``
+* every received frame gets ``rx_done_o`` within max(N_TPDO + 8, N_RPDO + 2) cycles (the
+  engine compares the frame with one channel per cycle); ``rx_reply_o``
   comes with ``tx_req_o`` = 1 and never with ``rx_unexpected_o``;
 * a frame on ``tx_req_o`` never changes and is never withdrawn before ``tx_ack_i``;
 * ``ev_*_o`` strobes are counted cycle by cycle and compared with the expected events and the
@@ -215,7 +216,7 @@ class TB:
         self.dut = dut
         self.n_tpdo = param("N_TPDO")
         self.n_rpdo = param("N_RPDO")
-        self.rx_bound = 4 + self.n_tpdo + self.n_rpdo
+        self.rx_bound = max(self.n_tpdo + 8, self.n_rpdo + 2)
         start_clock(dut.clk_i, CLK_HZ)
         self.sched = Scheduler()
         self.sched.run_until(sim_time_ps())
@@ -428,6 +429,13 @@ class TB:
         return self.port.writes[-1][0]
 
 
+def match_latency(k: int) -> tuple[int, int]:
+    """rx_valid_i -> rx_done_o of a frame decided at the k-th channel of its kind (the match
+    compares one channel per cycle): 2 + k, one more when the engine was executing another
+    item in the cycle of rx_valid_i. An unexpected frame is decided at the last channel."""
+    return (2 + k, 3 + k)
+
+
 def check_rx_clean(tb: TB) -> None:
     for rec in tb.rx_log:
         assert rec.latency <= tb.rx_bound
@@ -607,7 +615,8 @@ async def run_rtr_on_master_tpdo(dut):
     """Purpose: remote requests for the master's TPDOs (FSM T11 path).
 
     Verifies: an RTR for a TT 253 TPDO is answered by rx_done_o with rx_reply_o and tx_req_o
-    = 1 (5 cycles from rx_valid_i with an idle transmitter), and the reply carries the data
+    = 1 (5 cycles from rx_valid_i with an idle transmitter, 6 when the engine was busy), and
+    the reply carries the data
     committed last (applied by the slave); TT 252 answers with the data sampled at the last
     SYNC, not with a commit made after it; an RTR for a TPDO without RTR allowed, for an RPDO
     COB-ID and for a COB-ID of no channel is unexpected and sends nothing; an RTR while the
@@ -632,7 +641,7 @@ async def run_rtr_on_master_tpdo(dut):
 
     await host.tpdo_write(0, drive_payload(6, 1234))
     rec = await rtr(0x201)
-    assert rec.reply == 1 and rec.unexpected == 0 and rec.latency == 5, rec
+    assert rec.reply == 1 and rec.unexpected == 0 and rec.latency in (5, 6), rec
     await Timer(300, "us")
     assert [bytes(r.msg.data) for r in tb.sent(0x201)] == [drive_payload(6, 1234)]
     assert tb.slaves[1].read(0x607A) == 1234
@@ -659,7 +668,9 @@ async def run_rtr_on_master_tpdo(dut):
     n_tx = len(tb.tx_log)
     for cob in (0x203, 0x181, 0x185):
         rec = await rtr(cob)
-        assert rec.unexpected == 1 and rec.reply == 0 and rec.latency == 2, (hex(cob), rec)
+        # remote frames are compared with the TPDOs only: decided at the last one
+        assert rec.unexpected == 1 and rec.reply == 0, (hex(cob), rec)
+        assert rec.latency in match_latency(tb.n_tpdo - 1), (hex(cob), rec)
     await Timer(300, "us")
     assert len(tb.tx_log) == n_tx
     # inhibited: no reply now, the frame comes when the inhibit time (1 ms) ends
@@ -667,7 +678,7 @@ async def run_rtr_on_master_tpdo(dut):
     await tb.wait_for(lambda: len(tb.sent(0x204)) == 1, 500, step_us=1)
     t_a = tb.sent(0x204)[0].t_ps
     rec = await rtr(0x204)
-    assert rec.reply == 0 and rec.unexpected == 0 and rec.latency == 2, rec
+    assert rec.reply == 0 and rec.unexpected == 0 and rec.latency in match_latency(3), rec
     await tb.wait_for(lambda: len(tb.sent(0x204)) == 2, 1500, step_us=1)
     assert 1000 * PS_PER_US < tb.sent(0x204)[1].t_ps - t_a <= 1100 * PS_PER_US
     cnt = await tb.counters()
@@ -679,12 +690,12 @@ async def run_rtr_on_master_tpdo(dut):
 async def run_rpdo_reception_200_syncs(dut):
     """Purpose: RPDO reception from three slaves over 200 SYNC cycles.
 
-    Verifies: each slave's TPDO1 (a new position every SYNC) is stored with rx_done_o two
-    cycles after rx_valid_i; every 10th cycle the host's snapshot of each channel equals the
-    slave's last frame on the bus, with SEQ = frames so far, SYNC_COUNT = sync_count_i of the
-    SYNC before it, NEW set (acknowledged by the previous read); after 200 SYNCs: SEQ = 200 on
-    each channel, 600 ev_rx_o strobes = PDO_CNT_RX, no length error, no missed cycle, nothing
-    unexpected.
+    Verifies: each slave's TPDO1 (a new position every SYNC) is stored with rx_done_o 2 + k
+    cycles after rx_valid_i (RPDO k; one more when the engine was busy); every 10th cycle the
+    host's snapshot of each channel equals the slave's last frame on the bus, with SEQ =
+    frames so far, SYNC_COUNT = sync_count_i of the SYNC before it, NEW set (acknowledged by
+    the previous read); after 200 SYNCs: SEQ = 200 on each channel, 600 ev_rx_o strobes =
+    PDO_CNT_RX, no length error, no missed cycle, nothing unexpected.
     """
     tb = TB(dut)
     for n, slave in tb.slaves.items():
@@ -717,7 +728,9 @@ async def run_rpdo_reception_200_syncs(dut):
     total = 3 * (n_syncs + 1)
     assert cnt["rx"] == total == len(tb.strobes["ev_rx_o"]), (cnt, len(tb.strobes["ev_rx_o"]))
     assert cnt["len_err"] == cnt["missed"] == cnt["unexpected"] == 0, cnt
-    assert {r.latency for r in tb.rx_log} == {2} and not any(r.reply for r in tb.rx_log)
+    for r in tb.rx_log:
+        assert r.latency in match_latency(r.msg.arbitration_id - 0x181), r
+    assert not any(r.reply for r in tb.rx_log)
 
 
 @cocotb.test(timeout_time=100, timeout_unit="ms")
@@ -851,7 +864,8 @@ async def run_unexpected_cob_ids(dut):
 
     Verifies: a data frame 185h (no channel), a data frame on the master's own TPDO COB-ID
     201h, an RTR on an RPDO COB-ID 181h and an RTR for a TPDO without RTR allowed each give
-    rx_done_o with rx_unexpected_o two cycles after rx_valid_i; no frame is sent, nothing is
+    rx_done_o with rx_unexpected_o once the last channel of its kind was compared
+    (``match_latency``); no frame is sent, nothing is
     stored (PDO_RX_NEW = 0, SEQ 0), PDO_CNT_UNEXPECTED = 4; an invalid RPDO channel with a
     matching COB-ID does not take a frame either.
     """
@@ -868,7 +882,10 @@ async def run_unexpected_cob_ids(dut):
         tb.clock.sync()
         tb.requester.send(msg)
     await tb.wait_for(lambda: len(tb.rx_log) == len(stray), 2000)
-    assert [(r.unexpected, r.reply, r.latency) for r in tb.rx_log] == [(1, 0, 2)] * len(stray)
+    assert [(r.unexpected, r.reply) for r in tb.rx_log] == [(1, 0)] * len(stray)
+    for r in tb.rx_log:
+        last = (tb.n_tpdo if r.msg.is_remote_frame else tb.n_rpdo) - 1
+        assert r.latency in match_latency(last), r
     assert tb.tx_log == []
     assert await host.rpdo_new() == 0
     assert (await host.rpdo_read(0))["seq"] == 0
@@ -886,7 +903,8 @@ async def run_queue_late_and_no_loss(dut):
     started by each window end (3 per window, minus the presented one: ev_late_o strobes,
     PDO_CNT_LATE, per-channel LATE), keeps the RTR polls and a TT 255 trigger made during the
     stall (sent after it); afterwards every SYNC again gives exactly 5 frames; with no window
-    (window_open_i low) the TPDOs still due at the next SYNC are counted late.
+    (window_open_i low) the TPDOs still due at the next SYNC are counted late, per channel
+    counted from 0 after PDO_CTRL.CLR_COUNTERS.
     """
     tb = TB(dut)
     await tb.start(slave_tpdos=False)
@@ -915,7 +933,9 @@ async def run_queue_late_and_no_loss(dut):
     await tb.wait_syncs(2)
     await Timer(tb.window_us + 20, "us")
     tb.allow_tx(True)
-    await Timer(200, "us")
+    await Timer(400, "us")
+    # the polls kept over the stall are presented before the SYNC that follows the release
+    release_sync = tb.sync_edges[stall_sync + 3]
     after = [r for r in tb.tx_log if r.t_ps > tb.sync_edges[stall_sync + 2]]
     stuck = after[0].msg.arbitration_id
     assert stuck in (0x201, 0x202, 0x203, 0x181, 0x182), hex(stuck)
@@ -923,7 +943,8 @@ async def run_queue_late_and_no_loss(dut):
     cnt = await tb.counters()
     assert cnt["late"] == late == len(tb.strobes["ev_late_o"]), (cnt, tb.strobes["ev_late_o"])
     assert 0x284 in {r.msg.arbitration_id for r in after}, "event TPDO lost"
-    assert {r.msg.arbitration_id for r in after if r.msg.is_remote_frame} == {0x181, 0x182}
+    assert {r.msg.arbitration_id for r in after
+            if r.msg.is_remote_frame and r.t_req_ps < release_sync} == {0x181, 0x182}
     lates = []
     for ch in range(3):
         lates.append((await host.tpdo_status(ch))["late"])
@@ -935,6 +956,8 @@ async def run_queue_late_and_no_loss(dut):
     # no window: late when still due at the next SYNC
     await host.pdo_clear_counters()
     assert (await tb.counters())["late"] == 0
+    # CLR_COUNTERS also clears every channel's LATE (counted from 0 again below)
+    assert [(await host.tpdo_status(ch))["late"] for ch in range(3)] == [0, 0, 0]
     tb.window_us = 0
     await tb.at_phase(900)
     n_tx = len(tb.tx_log)
@@ -945,6 +968,8 @@ async def run_queue_late_and_no_loss(dut):
     await Timer(600, "us")
     stuck = tb.tx_log[n_tx].msg.arbitration_id
     assert (await tb.counters())["late"] == 3 - (stuck in (0x201, 0x202, 0x203))
+    lates = [(await host.tpdo_status(ch))["late"] for ch in range(3)]
+    assert lates == [1 - (0x201 + ch == stuck) for ch in range(3)], (lates, hex(stuck))
     tb.sync_stop()
 
 
