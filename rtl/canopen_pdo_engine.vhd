@@ -705,7 +705,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
     -- ---------------------------------------------------------------------------------------------
-    exec_proc : process (e_st, e_op, e_item, e_last, e_hit, ca_q, sa_q, i_stale, i_cfgn, i_sp,
+    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, i_stale, i_cfgn, i_sp,
                          i_cv, i_fresh,
                          t_due, t_ns, t_inh, t_latev, r_gs, sw_tick, rx_id_q, rx_rtr_q,
                          rx_dlc_q) is
