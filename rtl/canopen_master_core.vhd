@@ -20,8 +20,9 @@
 --     (bounded waits), controller re-initialisation (St0), event and counter strobes.
 --   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
---   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation is only dispatched when its buffer is
---   free, so St12 never waits behind a pending transmission.
+--   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation (also a reply of St5..St7, St13) is
+--   only dispatched when its buffer is free, so St12 never waits behind a pending transmission
+--   and the FSM keeps reading received frames while a frame waits for its buffer.
 --   canopen_pdo_engine handles St5 (received PDOs, RTRs on the master's PDOs) and St8 (PDOs
 --   due: synchronous after SYNC within the synchronous window, event, RTR replies, RPDO polls).
 -- =================================================================================================
@@ -207,6 +208,10 @@ architecture rtl of canopen_master_core is
     signal err_fatal    : std_logic;
     signal err_nmt      : std_logic;
     signal watchdog     : std_logic;
+    -- replies of St5..St7 (T11, T13, T15) only while their TX buffer is free
+    signal pdo_reply_now : std_logic;
+    signal sdo_reply_now : std_logic;
+    signal nmt_reply_now : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Datapath registers
@@ -241,6 +246,8 @@ architecture rtl of canopen_master_core is
     signal sync_count   : unsigned(31 downto 0);
     signal sync_sent    : unsigned(7 downto 0);
     signal sync_fire    : std_logic;
+    -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
+    signal sync_fire_q : std_logic;
     -- error latch (St13)
     signal err_can    : std_logic;
     signal err_busoff : std_logic;
@@ -487,8 +494,11 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- FSM conditions
     -- ---------------------------------------------------------------------------------------------
+    -- sync_due: in the cycle after a fire, sync_loaded is already 0 but the controller shows
+    -- TXB2 pending only one cycle later: without sync_fire_q, St2..St12 could preload TXB2
+    -- behind the SYNC just started and St12 wait for its transmission (fuzz finding 2)
     err_pending   <= err_can or err_busoff or err_reinit or err_node;
-    sync_due      <= sync_en and (or sync_period_us) and not sync_loaded
+    sync_due      <= sync_en and (or sync_period_us) and not sync_loaded and not sync_fire_q
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
     om_preload_ok <= '1' when om_feasible = '1'
                               and sync_timer >= shift_right(unsigned(sync_period_us), 1) else
@@ -498,6 +508,14 @@ begin
                    and not ctl_tx_pending_i(1);
     sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
     pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
+    -- the same for the replies of St5..St7 and St13 (T11, T13, T15, T28): with the buffer
+    -- still pending (its frame loses arbitration on a busy bus) the reply stays requested in its
+    -- source and the FSM returns to St1 (T24, T25, T26, T27), which keeps reading the
+    -- controller's RX FIFO and sends the reply by T20..T22 once the buffer is free; St12 never
+    -- waits for a transmission to end (fuzz finding 2: RX overflow while St12 waited)
+    pdo_reply_now <= pdo_rx_reply and not ctl_tx_pending_i(0);
+    sdo_reply_now <= sdo_rx_reply and not ctl_tx_pending_i(1);
+    nmt_reply_now <= mon_rx_reply and not ctl_tx_pending_i(1);
 
     -- St3: CANopen uses base frames; an extended frame is dropped (T6) and counted
     rx_head_ok <= not ctl_rx_ide_i;
@@ -564,9 +582,10 @@ begin
     encap_ok    <= in_encap;
 
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
-    -- by the node monitor after a node error is sent right away (T28)
+    -- by the node monitor after a node error is sent right away (T28) if TXB1 is free, else
+    -- from St1 (T22) once it is
     err_fatal <= err_busoff or err_reinit;
-    err_nmt   <= err_node and mon_tx_req;
+    err_nmt   <= err_node and mon_tx_req and not ctl_tx_pending_i(1);
 
     -- ---------------------------------------------------------------------------------------------
     -- Datapath: frames, SYNC, NMT, errors, watchdog
@@ -590,6 +609,7 @@ begin
             sync_count       <= (others => '0');
             sync_sent        <= (others => '0');
             sync_fire        <= '0';
+            sync_fire_q      <= '0';
             sync_ovf_q       <= (others => '0');
             sync_stale       <= '0';
             err_can          <= '0';
@@ -612,6 +632,7 @@ begin
             can_eflg         <= (others => '0');
         elsif rising_edge(clk_i) then
             sync_fire    <= '0';
+            sync_fire_q  <= sync_fire;
             reinit_pulse <= '0';
             sdo_tx_ack   <= '0';
             mon_tx_ack   <= '0';
@@ -942,11 +963,11 @@ begin
             cls_sdo_i      => cls_sdo,
             cls_nmt_i      => cls_nmt,
             pdo_done_i     => pdo_rx_done,
-            pdo_reply_i    => pdo_rx_reply,
+            pdo_reply_i    => pdo_reply_now,
             sdo_done_i     => sdo_rx_done,
-            sdo_reply_i    => sdo_rx_reply,
+            sdo_reply_i    => sdo_reply_now,
             nmt_done_i     => mon_rx_done,
-            nmt_reply_i    => mon_rx_reply,
+            nmt_reply_i    => nmt_reply_now,
             frame_ready_i  => frame_ready,
             encap_ok_i     => encap_ok,
             tx_loaded_i    => ctl_tx_loaded_i,
