@@ -84,6 +84,7 @@ entity canopen_master_core is
         ctl_tx_dlc_o     : out   std_logic_vector(3 downto 0);  -- DLC
         ctl_tx_data_o    : out   std_logic_vector(63 downto 0); -- data
         ctl_tx_fire_o    : out   std_logic_vector(2 downto 0);  -- pulse: TXnRTS
+        ctl_tx_cancel_o  : out   std_logic_vector(2 downto 0);  -- pulse: cancel pending buffer
         ctl_tx_loaded_i  : in    std_logic;                     -- strobe: executed
         ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
         ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
@@ -231,6 +232,14 @@ architecture rtl of canopen_master_core is
     signal tx_txp       : std_logic_vector(1 downto 0);
     signal tx_send      : std_logic;
     signal tx_requested : std_logic;
+    -- TXB1 holds a request of an SDO transfer (not an abort frame), with this COB-ID
+    signal txb1_sdo_req : std_logic;
+    signal txb1_id      : std_logic_vector(10 downto 0);
+    -- the SDO source presents the abort frame of the transfer whose request waits in TXB1
+    signal sdo_cancel : std_logic;
+    -- the cancel of TXB1 was asked for (until TXB1 is free), and the pulse towards the chip
+    signal cancel_sent  : std_logic;
+    signal cancel_pulse : std_logic;
     -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
     signal gen_src : natural range 0 to 5;
     -- host NMT command waiting
@@ -514,6 +523,10 @@ begin
     -- controller's RX FIFO and sends the reply by T20..T22 once the buffer is free; St12 never
     -- waits for a transmission to end (fuzz finding 2: RX overflow while St12 waited)
     pdo_reply_now <= pdo_rx_reply and not ctl_tx_pending_i(0);
+    sdo_cancel    <= '1' when sdo_tx_req = '1' and sdo_tx_data(7 downto 5) = SDO_CS_ABORT_C
+                              and ctl_tx_pending_i(1) = '1' and txb1_sdo_req = '1'
+                              and txb1_id = sdo_tx_id else
+                     '0';
     sdo_reply_now <= sdo_rx_reply and not ctl_tx_pending_i(1);
     nmt_reply_now <= mon_rx_reply and not ctl_tx_pending_i(1);
 
@@ -598,6 +611,9 @@ begin
 
         if rst_n_i = '0' then
             tx_requested     <= '0';
+            txb1_sdo_req     <= '0';
+            cancel_sent      <= '0';
+            cancel_pulse     <= '0';
             gen_src          <= 0;
             nmt_pending      <= '0';
             nmt_refused      <= '0';
@@ -770,6 +786,24 @@ begin
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
                 sync_loaded <= not sync_stale;
             end if;
+            if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_cmd_c then
+                txb1_id <= tx_frame.id;
+                if gen_src = 3 and tx_frame.data(7 downto 5) /= SDO_CS_ABORT_C then
+                    txb1_sdo_req <= '1';
+                else
+                    txb1_sdo_req <= '0';
+                end if;
+            end if;
+            -- an SDO transfer ends by an abort while its last request still waits in TXB1: the
+            -- request is cancelled (a frame already on the wire completes) before the abort is
+            -- loaded, so it cannot reach the server after the transfer ended (fuzz finding 3)
+            cancel_pulse <= sdo_cancel and not cancel_sent;
+            if sdo_cancel = '1' then
+                cancel_sent <= '1';
+            end if;
+            if ctl_tx_pending_i(1) = '0' then
+                cancel_sent <= '0';
+            end if;
             -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
             -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
             if ctl_init_done_i = '0' then
@@ -907,15 +941,16 @@ begin
     ctl_reinit_o <= reinit_pulse;
 
     -- St12: request towards mcp2510_ctrl
-    ctl_tx_valid_o <= in_tx and not tx_requested;
-    ctl_tx_buf_o   <= tx_buf;
-    ctl_tx_txp_o   <= tx_txp;
-    ctl_tx_send_o  <= tx_send;
-    ctl_tx_id_o    <= (28 downto 11 => '0') & tx_frame.id;
-    ctl_tx_rtr_o   <= tx_frame.rtr;
-    ctl_tx_dlc_o   <= tx_frame.dlc;
-    ctl_tx_data_o  <= tx_frame.data;
-    ctl_tx_fire_o  <= (2 => sync_fire, others => '0');
+    ctl_tx_valid_o  <= in_tx and not tx_requested;
+    ctl_tx_buf_o    <= tx_buf;
+    ctl_tx_txp_o    <= tx_txp;
+    ctl_tx_send_o   <= tx_send;
+    ctl_tx_id_o     <= (28 downto 11 => '0') & tx_frame.id;
+    ctl_tx_rtr_o    <= tx_frame.rtr;
+    ctl_tx_dlc_o    <= tx_frame.dlc;
+    ctl_tx_data_o   <= tx_frame.data;
+    ctl_tx_fire_o   <= (2 => sync_fire, others => '0');
+    ctl_tx_cancel_o <= (1 => cancel_pulse, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
     enter_sdo   <= in_sdo_proc and state_change;

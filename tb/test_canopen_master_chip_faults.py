@@ -390,7 +390,10 @@ async def run_rx_kept_while_sdo_reply_waits(dut):
     client abort, whose frame needs TXB1 as well. The FSM must not wait in St12 for TXB1 (it
     would, for the rest of the 3 ms flood, and the chip's receive buffers would overflow): no
     RX overflow, every frame of the flood counted in CNT_RX_FRAMES, St12 at most
-    ST12_BOUND_US; the transfer ends with abort 0504 0001h sent by the client.
+    ST12_BOUND_US; the transfer ends with abort 0504 0001h sent by the client. Fuzz finding 3:
+    the upload request still waiting in TXB1 when the client aborted is cancelled (BIT MODIFY
+    TXB1CTRL.TXREQ = 0) before the abort is loaded: the only frame 602h on the bus is the abort,
+    sent within 200 us after the flood.
     """
     tb = SystemTB(dut, node_ids=(1, 2))
     await boot_quiet(tb)
@@ -416,6 +419,12 @@ async def run_rx_kept_while_sdo_reply_waits(dut):
     exc = await xfer
     assert isinstance(exc, SdoAbort), f"the transfer ended with {exc!r}"
     assert exc.code == 0x05040001 and exc.sent_by_client, exc
+    # fuzz finding 3: the request of the ended transfer was cancelled in TXB1, only the abort
+    # frame of node 2's transfer reaches the bus, and it goes right after the flood
+    sdo = [r for r in tb.frames(0x602) if r.t_start_ps >= t0]
+    assert [r.msg.data[0] for r in sdo] == [0x80], f"frames 602h after the abort: {sdo}"
+    flood_end = max(r.t_end_ps for r in tb.frames(FLOOD_ID_SDO))
+    assert sdo[0].t_start_ps - flood_end < 200 * PS_PER_US, "abort frame not sent promptly"
     await check_flood_received(tb, t0, cnt0)
     check_clean(tb)
     await Timer(1, "ns")
