@@ -20,8 +20,9 @@
 --     (bounded waits), controller re-initialisation (St0), event and counter strobes.
 --   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
---   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation is only dispatched when its buffer is
---   free, so St12 never waits behind a pending transmission.
+--   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation (also a reply of St5..St7, St13) is
+--   only dispatched when its buffer is free, so St12 never waits behind a pending transmission
+--   and the FSM keeps reading received frames while a frame waits for its buffer.
 --   canopen_pdo_engine handles St5 (received PDOs, RTRs on the master's PDOs) and St8 (PDOs
 --   due: synchronous after SYNC within the synchronous window, event, RTR replies, RPDO polls).
 -- =================================================================================================
@@ -84,6 +85,7 @@ entity canopen_master_core is
         ctl_tx_dlc_o     : out   std_logic_vector(3 downto 0);  -- DLC
         ctl_tx_data_o    : out   std_logic_vector(63 downto 0); -- data
         ctl_tx_fire_o    : out   std_logic_vector(2 downto 0);  -- pulse: TXnRTS
+        ctl_tx_cancel_o  : out   std_logic_vector(2 downto 0);  -- pulse: cancel pending buffer
         ctl_tx_loaded_i  : in    std_logic;                     -- strobe: executed
         ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
         ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
@@ -208,6 +210,10 @@ architecture rtl of canopen_master_core is
     signal err_fatal    : std_logic;
     signal err_nmt      : std_logic;
     signal watchdog     : std_logic;
+    -- replies of St5..St7 (T11, T13, T15) only while their TX buffer is free
+    signal pdo_reply_now : std_logic;
+    signal sdo_reply_now : std_logic;
+    signal nmt_reply_now : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Datapath registers
@@ -227,6 +233,14 @@ architecture rtl of canopen_master_core is
     signal tx_txp       : std_logic_vector(1 downto 0);
     signal tx_send      : std_logic;
     signal tx_requested : std_logic;
+    -- TXB1 holds a request of an SDO transfer (not an abort frame), with this COB-ID
+    signal txb1_sdo_req : std_logic;
+    signal txb1_id      : std_logic_vector(10 downto 0);
+    -- the SDO source presents the abort frame of the transfer whose request waits in TXB1
+    signal sdo_cancel : std_logic;
+    -- the cancel of TXB1 was asked for (until TXB1 is free), and the pulse towards the chip
+    signal cancel_sent  : std_logic;
+    signal cancel_pulse : std_logic;
     -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
     signal gen_src : natural range 0 to 5;
     -- host NMT command waiting
@@ -242,6 +256,8 @@ architecture rtl of canopen_master_core is
     signal sync_count   : unsigned(31 downto 0);
     signal sync_sent    : unsigned(7 downto 0);
     signal sync_fire    : std_logic;
+    -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
+    signal sync_fire_q : std_logic;
     -- error latch (St13)
     signal err_can    : std_logic;
     signal err_busoff : std_logic;
@@ -510,8 +526,11 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- FSM conditions
     -- ---------------------------------------------------------------------------------------------
+    -- sync_due: in the cycle after a fire, sync_loaded is already 0 but the controller shows
+    -- TXB2 pending only one cycle later: without sync_fire_q, St2..St12 could preload TXB2
+    -- behind the SYNC just started and St12 wait for its transmission (fuzz finding 2)
     err_pending   <= err_can or err_busoff or err_reinit or err_node;
-    sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded
+    sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
     om_preload_ok <= '1' when om_feasible = '1'
                               and sync_timer >= shift_right(unsigned(sync_period_us), 1) else
@@ -521,6 +540,18 @@ begin
                    and not ctl_tx_pending_i(1);
     sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
     pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
+    -- the same for the replies of St5..St7 and St13 (T11, T13, T15, T28): with the buffer
+    -- still pending (its frame loses arbitration on a busy bus) the reply stays requested in its
+    -- source and the FSM returns to St1 (T24, T25, T26, T27), which keeps reading the
+    -- controller's RX FIFO and sends the reply by T20..T22 once the buffer is free; St12 never
+    -- waits for a transmission to end (fuzz finding 2: RX overflow while St12 waited)
+    pdo_reply_now <= pdo_rx_reply and not ctl_tx_pending_i(0);
+    sdo_cancel    <= '1' when sdo_tx_req = '1' and sdo_tx_data(7 downto 5) = SDO_CS_ABORT_C
+                              and ctl_tx_pending_i(1) = '1' and txb1_sdo_req = '1'
+                              and txb1_id = sdo_tx_id else
+                     '0';
+    sdo_reply_now <= sdo_rx_reply and not ctl_tx_pending_i(1);
+    nmt_reply_now <= mon_rx_reply and not ctl_tx_pending_i(1);
 
     -- St3: CANopen uses base frames; an extended frame is dropped (T6) and counted
     rx_head_ok <= not ctl_rx_ide_i;
@@ -587,9 +618,10 @@ begin
     encap_ok    <= in_encap;
 
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
-    -- by the node monitor after a node error is sent right away (T28)
+    -- by the node monitor after a node error is sent right away (T28) if TXB1 is free, else
+    -- from St1 (T22) once it is
     err_fatal <= err_busoff or err_reinit;
-    err_nmt   <= err_node and mon_tx_req;
+    err_nmt   <= err_node and mon_tx_req and not ctl_tx_pending_i(1);
 
     -- ---------------------------------------------------------------------------------------------
     -- Datapath: frames, SYNC, NMT, errors, watchdog
@@ -602,6 +634,9 @@ begin
 
         if rst_n_i = '0' then
             tx_requested     <= '0';
+            txb1_sdo_req     <= '0';
+            cancel_sent      <= '0';
+            cancel_pulse     <= '0';
             gen_src          <= 0;
             nmt_pending      <= '0';
             nmt_refused      <= '0';
@@ -613,6 +648,7 @@ begin
             sync_count       <= (others => '0');
             sync_sent        <= (others => '0');
             sync_fire        <= '0';
+            sync_fire_q      <= '0';
             sync_ovf_q       <= (others => '0');
             sync_stale       <= '0';
             err_can          <= '0';
@@ -635,6 +671,7 @@ begin
             can_eflg         <= (others => '0');
         elsif rising_edge(clk_i) then
             sync_fire    <= '0';
+            sync_fire_q  <= sync_fire;
             reinit_pulse <= '0';
             sdo_tx_ack   <= '0';
             mon_tx_ack   <= '0';
@@ -771,6 +808,24 @@ begin
             end if;
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
                 sync_loaded <= not sync_stale;
+            end if;
+            if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_cmd_c then
+                txb1_id <= tx_frame.id;
+                if gen_src = 3 and tx_frame.data(7 downto 5) /= SDO_CS_ABORT_C then
+                    txb1_sdo_req <= '1';
+                else
+                    txb1_sdo_req <= '0';
+                end if;
+            end if;
+            -- an SDO transfer ends by an abort while its last request still waits in TXB1: the
+            -- request is cancelled (a frame already on the wire completes) before the abort is
+            -- loaded, so it cannot reach the server after the transfer ended (fuzz finding 3)
+            cancel_pulse <= sdo_cancel and not cancel_sent;
+            if sdo_cancel = '1' then
+                cancel_sent <= '1';
+            end if;
+            if ctl_tx_pending_i(1) = '0' then
+                cancel_sent <= '0';
             end if;
             -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
             -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
@@ -909,15 +964,16 @@ begin
     ctl_reinit_o <= reinit_pulse;
 
     -- St12: request towards mcp2510_ctrl
-    ctl_tx_valid_o <= in_tx and not tx_requested;
-    ctl_tx_buf_o   <= tx_buf;
-    ctl_tx_txp_o   <= tx_txp;
-    ctl_tx_send_o  <= tx_send;
-    ctl_tx_id_o    <= (28 downto 11 => '0') & tx_frame.id;
-    ctl_tx_rtr_o   <= tx_frame.rtr;
-    ctl_tx_dlc_o   <= tx_frame.dlc;
-    ctl_tx_data_o  <= tx_frame.data;
-    ctl_tx_fire_o  <= (2 => sync_fire, others => '0');
+    ctl_tx_valid_o  <= in_tx and not tx_requested;
+    ctl_tx_buf_o    <= tx_buf;
+    ctl_tx_txp_o    <= tx_txp;
+    ctl_tx_send_o   <= tx_send;
+    ctl_tx_id_o     <= (28 downto 11 => '0') & tx_frame.id;
+    ctl_tx_rtr_o    <= tx_frame.rtr;
+    ctl_tx_dlc_o    <= tx_frame.dlc;
+    ctl_tx_data_o   <= tx_frame.data;
+    ctl_tx_fire_o   <= (2 => sync_fire, others => '0');
+    ctl_tx_cancel_o <= (1 => cancel_pulse, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
     enter_sdo   <= in_sdo_proc and state_change;
@@ -968,11 +1024,11 @@ begin
             cls_sdo_i      => cls_sdo,
             cls_nmt_i      => cls_nmt,
             pdo_done_i     => pdo_rx_done,
-            pdo_reply_i    => pdo_rx_reply,
+            pdo_reply_i    => pdo_reply_now,
             sdo_done_i     => sdo_rx_done,
-            sdo_reply_i    => sdo_rx_reply,
+            sdo_reply_i    => sdo_reply_now,
             nmt_done_i     => mon_rx_done,
-            nmt_reply_i    => mon_rx_reply,
+            nmt_reply_i    => nmt_reply_now,
             frame_ready_i  => frame_ready,
             encap_ok_i     => encap_ok,
             tx_loaded_i    => ctl_tx_loaded_i,

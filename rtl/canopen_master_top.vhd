@@ -90,6 +90,7 @@ architecture rtl of canopen_master_top is
     signal tx_dlc      : std_logic_vector(3 downto 0);
     signal tx_data     : std_logic_vector(63 downto 0);
     signal tx_fire     : std_logic_vector(2 downto 0);
+    signal tx_cancel   : std_logic_vector(2 downto 0);
     signal tx_pending  : std_logic_vector(2 downto 0);
     signal tx_done     : std_logic_vector(2 downto 0);
     signal tx_err      : std_logic_vector(2 downto 0);
@@ -164,6 +165,7 @@ begin
             ctl_tx_dlc_o        => tx_dlc,
             ctl_tx_data_o       => tx_data,
             ctl_tx_fire_o       => tx_fire,
+            ctl_tx_cancel_o     => tx_cancel,
             ctl_tx_loaded_i     => tx_loaded,
             ctl_tx_pending_i    => tx_pending,
             ctl_tx_done_i       => tx_done,
@@ -214,6 +216,7 @@ begin
             tx_data_i        => tx_data,
             tx_fire_i        => tx_fire,
             tx_abort_i       => '0',
+            tx_cancel_i      => tx_cancel,
             tx_loaded_o      => tx_loaded,
             tx_pending_o     => tx_pending,
             tx_done_o        => tx_done,

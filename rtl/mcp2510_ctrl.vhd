@@ -27,7 +27,9 @@
 --     handled flags and, on receive overflow, one clearing EFLG.RXnOVR. Every cause is reported
 --     with a strobe (tx_done_o, tx_err_o, tx_arb_lost_o, rx_overflow_o, int_valid_o + flags).
 --   * Status on request: READ STATUS, TEC/REC, CANINTF/EFLG and TXB0-2CTRL (status_valid_o).
---   * tx_abort_i aborts all pending transmissions (CANCTRL.ABAT) and reports them.
+--   * tx_abort_i aborts all pending transmissions (CANCTRL.ABAT) and reports them; tx_cancel_i
+--     cancels one buffer (BIT MODIFY TXBnCTRL.TXREQ = 0, outcome by READ STATUS one longest
+--     frame later, with RX served meanwhile).
 -- =================================================================================================
 
 library ieee;
@@ -72,25 +74,26 @@ entity mcp2510_ctrl is
         busy_o      : out   std_logic;                    -- an SPI sequence is running
         state_o     : out   std_logic_vector(4 downto 0); -- sequencer state (debug)
         -- transmit request
-        tx_valid_i : in    std_logic;                     -- load (and send) a frame
-        tx_ready_o : out   std_logic;                     -- request accepted now
-        tx_buf_i   : in    std_logic_vector(1 downto 0);  -- TX buffer 0..2
-        tx_txp_i   : in    std_logic_vector(1 downto 0);  -- buffer priority (3 highest)
-        tx_send_i  : in    std_logic;                     -- 1: RTS after load; 0: preload
-        tx_id_i    : in    std_logic_vector(28 downto 0); -- identifier (std: 10..0)
-        tx_ide_i   : in    std_logic;                     -- extended identifier
-        tx_rtr_i   : in    std_logic;                     -- remote frame
-        tx_dlc_i   : in    std_logic_vector(3 downto 0);  -- data length code
-        tx_data_i  : in    std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
-        tx_fire_i  : in    std_logic_vector(2 downto 0);  -- pulse: start buffer by pin
-        tx_abort_i : in    std_logic;                     -- pulse: abort all pending
+        tx_valid_i  : in    std_logic;                     -- load (and send) a frame
+        tx_ready_o  : out   std_logic;                     -- request accepted now
+        tx_buf_i    : in    std_logic_vector(1 downto 0);  -- TX buffer 0..2
+        tx_txp_i    : in    std_logic_vector(1 downto 0);  -- buffer priority (3 highest)
+        tx_send_i   : in    std_logic;                     -- 1: RTS after load; 0: preload
+        tx_id_i     : in    std_logic_vector(28 downto 0); -- identifier (std: 10..0)
+        tx_ide_i    : in    std_logic;                     -- extended identifier
+        tx_rtr_i    : in    std_logic;                     -- remote frame
+        tx_dlc_i    : in    std_logic_vector(3 downto 0);  -- data length code
+        tx_data_i   : in    std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
+        tx_fire_i   : in    std_logic_vector(2 downto 0);  -- pulse: start buffer by pin
+        tx_abort_i  : in    std_logic;                     -- pulse: abort all pending
+        tx_cancel_i : in    std_logic_vector(2 downto 0);  -- pulse: cancel this pending buffer
         -- transmit events
         tx_loaded_o    : out   std_logic;                    -- strobe: request executed
         tx_pending_o   : out   std_logic_vector(2 downto 0); -- TXREQ set (as known here)
         tx_done_o      : out   std_logic_vector(2 downto 0); -- strobe: sent (TXnIF)
         tx_err_o       : out   std_logic_vector(2 downto 0); -- strobe: TXERR seen
         tx_arb_lost_o  : out   std_logic_vector(2 downto 0); -- strobe: MLOA seen
-        tx_aborted_o   : out   std_logic_vector(2 downto 0); -- strobe: aborted by tx_abort_i
+        tx_aborted_o   : out   std_logic_vector(2 downto 0); -- strobe: aborted/cancelled
         tx_fire_drop_o : out   std_logic_vector(2 downto 0); -- strobe: fire of an unloaded buffer
         -- received frames (FIFO head, first-word fall-through)
         rx_valid_o : out   std_logic;                     -- a frame is available
@@ -363,6 +366,27 @@ architecture rtl of mcp2510_ctrl is
     -- buffer completely written since the last RESET (only such a buffer may be fired by pin)
     signal txb_loaded : std_logic_vector(2 downto 0);
     signal abort_req  : std_logic;
+    -- cancel of single buffers (tx_cancel_i): BIT MODIFY TXBnCTRL.TXREQ = 0 still to send, the
+    -- buffers whose outcome is still open, the time left until READ STATUS tells it, that READ
+    -- falling due, and how often it was repeated (a frame still on the wire)
+    signal cancel_req   : std_logic_vector(2 downto 0);
+    signal cancel_wait  : std_logic_vector(2 downto 0);
+    signal cancel_tmr   : natural range 0 to abort_wait_c;
+    signal cancel_chk   : std_logic;
+    signal cancel_polls : natural range 0 to abort_polls_c;
+    -- S_ABORT_SET / S_ABORT_STATUS serve a cancel ('1') or the ABAT abort ('0'), of this buffer
+    signal cancel_op  : std_logic;
+    signal cancel_buf : natural range 0 to 2;
+    -- lowest buffer with a cancel to send, and the state a cancel dispatch goes to
+    signal cancel_first : natural range 0 to 2;
+    signal cancel_next  : seq_state_t;
+    -- TXREQ bits of a READ STATUS answer; a cancelled frame still on the wire (look again)
+    signal cancel_stat  : std_logic_vector(2 downto 0);
+    signal cancel_again : std_logic;
+    -- buffers an abort/cancel decides on, the states after its BIT MODIFY and after READ STATUS
+    signal abort_sel      : std_logic_vector(2 downto 0);
+    signal abort_set_next : seq_state_t;
+    signal abort_end_next : seq_state_t;
     -- reinit_i seen (a pulse that arrives while an SPI sequence runs is kept)
     signal reinit_req : std_logic;
     signal status_req : std_logic;
@@ -471,8 +495,9 @@ begin
     -- Command table: the MCP2510 instruction each sequencer state issues (latched by the
     -- executor on cmd_valid, one cycle after the state is entered).
     -- ---------------------------------------------------------------------------------------------
-    cmd_table_proc : process (buf_idx, intf_q, rx_buf, state, txp_cache, txp_known, txq_buf,
-                              txq_data, txq_dlc, txq_id, txq_ide, txq_rtr, txq_txp) is
+    cmd_table_proc : process (buf_idx, cancel_buf, cancel_op, intf_q, rx_buf, state, txp_cache,
+                              txp_known, txq_buf, txq_data, txq_dlc, txq_id, txq_ide, txq_rtr,
+                              txq_txp) is
 
         variable wd     : std_logic_vector(111 downto 0);
         variable hdr    : natural range 0 to 1;
@@ -665,14 +690,21 @@ begin
 
                 cmd_instr <= MCP_INSTR_RTS_C or ("00000" & buf_bit(txq_buf));
 
-            -- BIT MODIFY CANCTRL.ABAT = 1 / = 0
+            -- BIT MODIFY CANCTRL.ABAT = 1 / = 0; a cancel: BIT MODIFY TXBnCTRL.TXREQ = 0
             when S_ABORT_SET =>
 
-                wd(7 downto 0)  := MCP_CANCTRL_ABAT_C;
-                wd(15 downto 8) := MCP_CANCTRL_ABAT_C;
-                cmd_instr       <= MCP_INSTR_BIT_MODIFY_C;
-                cmd_addr        <= MCP_CANCTRL_C;
-                cmd_len         <= x"2";
+                if cancel_op = '1' then
+                    wd(7 downto 0) := MCP_TXBCTRL_TXREQ_C;
+                    cmd_addr       <= std_logic_vector(unsigned(MCP_TXB0CTRL_C)
+                                                       + MCP_TXB_STRIDE_C * cancel_buf);
+                else
+                    wd(7 downto 0)  := MCP_CANCTRL_ABAT_C;
+                    wd(15 downto 8) := MCP_CANCTRL_ABAT_C;
+                    cmd_addr        <= MCP_CANCTRL_C;
+                end if;
+
+                cmd_instr <= MCP_INSTR_BIT_MODIFY_C;
+                cmd_len   <= x"2";
 
             when S_ABORT_CLEAR =>
 
@@ -766,6 +798,8 @@ begin
             err_cnt        <= err_poll_c;
             err_valid_o    <= '0';
             abort_req      <= '0';
+            cancel_op      <= '0';
+            cancel_buf     <= 0;
             reinit_req     <= '0';
             status_req     <= '0';
             blank_cnt      <= 0;
@@ -940,6 +974,7 @@ begin
                         go(S_ERR_CNT);
                     elsif abort_req = '1' then
                         abort_req <= '0';
+                        cancel_op <= '0';
                         go(S_ABORT_SET);
                     elsif tx_valid_i = '1' and unsigned(tx_buf_i) <= 2
                           and pending(to_integer(unsigned(tx_buf_i)) mod 3) = '0' then
@@ -961,6 +996,10 @@ begin
                         end loop;
 
                         go(S_TX_LOAD);
+                    elsif cancel_chk = '1' or cancel_req /= "000" then
+                        cancel_op  <= '1';
+                        cancel_buf <= cancel_first;
+                        go(cancel_next);
                     elsif status_req = '1' then
                         status_req <= '0';
                         go(S_STAT_RDSTAT);
@@ -1116,7 +1155,7 @@ begin
                     elsif rsp_valid = '1' then
                         polls <= 0;
                         timer <= abort_wait_c;
-                        go(S_ABORT_WAIT);
+                        go(abort_set_next);
                     end if;
 
                 when S_ABORT_WAIT =>
@@ -1138,18 +1177,23 @@ begin
                                               MCP_STATUS_TXB1_TXREQ_C, MCP_STATUS_TXB2_TXREQ_C);
                         mask_v := "00000" & status_bits(byte_of(rd, 0), MCP_STATUS_TX0IF_C,
                                                         MCP_STATUS_TX1IF_C, MCP_STATUS_TX2IF_C);
-                        if (pending and pend_v) /= "000" and polls + 1 < abort_polls_c then
+                        if cancel_op = '0' and (pending and pend_v) /= "000"
+                           and polls + 1 < abort_polls_c then
                             -- still on the wire (a long frame at a low bit rate): wait again
                             polls <= polls + 1;
                             timer <= abort_wait_c;
                             go(S_ABORT_WAIT);
-                        else
-                            -- aborted: was pending, TXREQ clear, not completed (TXnIF = 0);
-                            -- completed ones are reported by the INT path (TXnIF)
-                            tx_aborted_o <= pending and not pend_v and not mask_v(2 downto 0);
-                            pending      <= (pending and (pend_v or mask_v(2 downto 0)))
+                        elsif cancel_op = '0' or cancel_again = '0' then
+                            -- aborted: was pending (and selected), TXREQ clear, not completed
+                            -- (TXnIF = 0); completed ones are reported by the INT path (TXnIF)
+                            tx_aborted_o <= abort_sel and pending and not pend_v
+                                            and not mask_v(2 downto 0);
+                            pending      <= (pending and not (abort_sel and not pend_v
+                                                              and not mask_v(2 downto 0)))
                                             or fire_set;
-                            go(S_ABORT_CLEAR);
+                            go(abort_end_next);
+                        else
+                            go(S_IDLE); -- a cancelled frame still on the wire: look again later
                         end if;
                     end if;
 
@@ -1302,6 +1346,73 @@ begin
     busy_o       <= '0' when state = S_IDLE or state = S_FAILED else '1';
     state_o      <= std_logic_vector(to_unsigned(seq_state_t'pos(state), 5));
     tx_pending_o <= pending;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Cancel of single TX buffers (tx_cancel_i): the BIT MODIFY TXBnCTRL.TXREQ = 0 still to send,
+    -- the buffers whose outcome is open, and READ STATUS falling due one longest frame later (a
+    -- frame already on the wire ends first; RX and INT are served meanwhile). seq_proc sends the
+    -- instructions (S_ABORT_SET, S_ABORT_STATUS with cancel_op = '1') and updates pending.
+    -- ---------------------------------------------------------------------------------------------
+    cancel_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            cancel_req   <= (others => '0');
+            cancel_wait  <= (others => '0');
+            cancel_tmr   <= 0;
+            cancel_chk   <= '0';
+            cancel_polls <= 0;
+        elsif rising_edge(clk_i) then
+            -- only a pending buffer can be cancelled
+            cancel_req <= cancel_req or (tx_cancel_i and pending);
+            if cancel_tmr > 1 then
+                cancel_tmr <= cancel_tmr - 1;
+            elsif cancel_tmr = 1 then
+                cancel_tmr <= 0;
+                cancel_chk <= '1';
+            end if;
+            if state = S_ABORT_SET and cancel_op = '1' and issued = '1' and rsp_valid = '1' then
+                cancel_req(cancel_buf)  <= '0';
+                cancel_wait(cancel_buf) <= '1';
+                cancel_tmr              <= abort_wait_c;
+                cancel_polls            <= 0;
+            end if;
+            if state = S_ABORT_STATUS and cancel_op = '1' then
+                cancel_chk <= '0';
+                if issued = '1' and rsp_valid = '1' and cancel_again = '1' then
+                    cancel_polls <= cancel_polls + 1;
+                    cancel_tmr   <= abort_wait_c;
+                elsif issued = '1' and rsp_valid = '1' then
+                    cancel_wait <= (others => '0');
+                end if;
+            end if;
+            -- the chip's RESET forgets every request
+            if state = S_RESET_CMD then
+                cancel_req  <= (others => '0');
+                cancel_wait <= (others => '0');
+                cancel_tmr  <= 0;
+                cancel_chk  <= '0';
+            end if;
+        end if;
+
+    end process cancel_proc;
+
+    cancel_first   <= 0 when cancel_req(0) = '1' else
+                      1 when cancel_req(1) = '1' else
+                      2;
+    cancel_next    <= S_ABORT_STATUS when cancel_chk = '1' else
+                      S_ABORT_SET;
+    cancel_stat    <= status_bits(byte_of(rsp_rdata, 0), MCP_STATUS_TXB0_TXREQ_C,
+                                  MCP_STATUS_TXB1_TXREQ_C, MCP_STATUS_TXB2_TXREQ_C);
+    cancel_again   <= '1' when (cancel_wait and pending and cancel_stat) /= "000"
+                               and cancel_polls + 1 < abort_polls_c else
+                      '0';
+    abort_sel      <= cancel_wait when cancel_op = '1' else
+                      "111";
+    abort_set_next <= S_IDLE when cancel_op = '1' else
+                      S_ABORT_WAIT;
+    abort_end_next <= S_IDLE when cancel_op = '1' else
+                      S_ABORT_CLEAR;
 
     -- ---------------------------------------------------------------------------------------------
     -- TXnRTS pins: a tx_fire_i pulse drives the pin low for TXRTS_LOW_NS (falling edge = start)

@@ -17,6 +17,7 @@ failing initialisation attempt. Checks:
 
 from __future__ import annotations
 
+import can
 import cocotb
 import pytest
 from cocotb.triggers import Timer, ValueChange
@@ -26,6 +27,8 @@ from sim_models.canopen_slave import NmtState
 from sim_models.mcp2510 import regs as MR
 from sim_models.sim_time import PS_PER_US
 from tb.tblib import regmap as R
+from tb.tblib.fsm_states import State
+from tb.tblib.host_driver import SdoAbort
 from tb.tblib.model_clock import sim_time_ps
 from tb.tblib.pdo_cycle import SYSTEM
 from tb.tblib.runner import run_cocotb
@@ -326,6 +329,128 @@ async def run_bus_off_shown_and_recovered(dut):
     dut._log.info(f"bus-off: host view at most {lag:.0f} us old (bound {BOUND_US} us)")
     assert lag <= BOUND_US, f"host error state {lag:.0f} us old"
     await check_every_sync_fired(tb, pins)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+# ======================================================= busy bus: receive while TX waits
+#: flood frame: DLC 0 (the shortest frame, 47 us at 1 Mbit/s: the fastest arrival rate), an id
+#: that is no CANopen service of the master (counted as unexpected, St4 -> St1, G3) and that
+#: wins arbitration against the master's SDO/NMT (6xxh) or, below 080h, also its SYNC
+FLOOD_ID_SDO, FLOOD_ID_SYNC = 0x110, 0x050
+#: a received frame waits at most one RX read per FIFO slot before St12 hands its frame over
+#: (4 frames of 47 us); far below the length of the floods (3 ms)
+ST12_BOUND_US = 250
+
+
+async def boot_quiet(tb: SystemTB) -> None:
+    """Reset and boot-up, no heartbeats: during the floods only they and the master send."""
+    await tb.reset()
+    await tb.wait_master_ready()
+    await tb.wait_for(lambda: all(s.nmt_state == NmtState.PRE_OPERATIONAL for s in tb.slaves),
+                      5_000, 50, "slaves pre-operational")
+
+
+def flood(n: int, can_id: int) -> list[can.Message]:
+    return [can.Message(arbitration_id=can_id, is_extended_id=False, dlc=0) for _ in range(n)]
+
+
+def st12_dwell_us(tb: SystemTB, t_from: int) -> float:
+    """Longest stay in St12 since ``t_from``."""
+    log = [(t, s) for t, s in tb.fsm.log if t >= t_from] + [(sim_time_ps(), None)]
+    worst = max((t1 - t0 for (t0, s), (t1, _) in zip(log, log[1:]) if s == State.S_CAN_TX),
+                default=0)
+    return worst / PS_PER_US
+
+
+async def check_flood_received(tb: SystemTB, t_from: int, cnt0: dict[str, int]) -> None:
+    """Every frame the chip received since ``t_from`` (the bus idle before) reached the host's
+    counters, no overflow, St12 never held longer than ST12_BOUND_US."""
+    cnt = await tb.host.counters()
+    # the bus is idle before the flood; the models' SOF may lie a little before the time the
+    # bench queued the frame, so the window starts 500 us early
+    t_win = t_from - 500 * PS_PER_US
+    others = [r for r in tb.frames() if r.t_start_ps >= t_win and CHIP in r.receivers]
+    dwell = st12_dwell_us(tb, t_from)
+    tb.dut._log.info(f"busy bus: {len(others)} frames of other nodes, RX_FRAMES "
+                     f"+{cnt['rx_frames'] - cnt0['rx_frames']}, RX_OVERFLOW "
+                     f"+{cnt['rx_overflow'] - cnt0['rx_overflow']}, longest St12 {dwell:.1f} us")
+    assert cnt["rx_overflow"] == cnt0["rx_overflow"], "frames lost in the MCP2510 (RX overflow)"
+    assert cnt["rx_frames"] - cnt0["rx_frames"] == len(others), "received frames missing"
+    assert dwell <= ST12_BOUND_US, f"St12 held {dwell:.1f} us (bound {ST12_BOUND_US} us)"
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_rx_kept_while_sdo_reply_waits(dut):
+    """Purpose: the master keeps receiving while an SDO reply waits for TXB1 (fuzz finding 2).
+
+    Verifies: T13/T11/T15/T28 only with the reply's TX buffer free, else T25 and the reply from
+    St1 (T21) later. A flood of 0-byte frames (id 110h, they win every arbitration against the
+    master's 602h) keeps the SDO upload request in TXB1; a forged response (scs 7) makes the
+    client abort, whose frame needs TXB1 as well. The FSM must not wait in St12 for TXB1 (it
+    would, for the rest of the 3 ms flood, and the chip's receive buffers would overflow): no
+    RX overflow, every frame of the flood counted in CNT_RX_FRAMES, St12 at most
+    ST12_BOUND_US; the transfer ends with abort 0504 0001h sent by the client. Fuzz finding 3:
+    the upload request still waiting in TXB1 when the client aborted is cancelled (BIT MODIFY
+    TXB1CTRL.TXREQ = 0) before the abort is loaded: the only frame 602h on the bus is the abort,
+    sent within 200 us after the flood.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    cnt0 = await tb.host.counters()
+    t0 = sim_time_ps()
+    tb.raw.send(*flood(64, FLOOD_ID_SDO))
+
+    async def upload() -> Exception | None:
+        try:
+            await tb.host.sdo_upload(2, 0x1000, 0, timeout_ms=100)
+        except Exception as e:  # noqa: BLE001 - the outcome is checked below
+            return e
+        return None
+
+    xfer = cocotb.start_soon(upload())
+    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
+                      "SDO request in TXB1")
+    forged = can.Message(arbitration_id=0x582, is_extended_id=False,
+                         data=bytes([0xE0, 0, 0x10, 0, 0, 0, 0, 0]))
+    tb.raw.queue.insert(2, forged)
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    await Timer(1_000, "us")
+    exc = await xfer
+    assert isinstance(exc, SdoAbort), f"the transfer ended with {exc!r}"
+    assert exc.code == 0x05040001 and exc.sent_by_client, exc
+    # fuzz finding 3: the request of the ended transfer was cancelled in TXB1, only the abort
+    # frame of node 2's transfer reaches the bus, and it goes right after the flood
+    sdo = [r for r in tb.frames(0x602) if r.t_start_ps >= t0]
+    assert [r.msg.data[0] for r in sdo] == [0x80], f"frames 602h after the abort: {sdo}"
+    flood_end = max(r.t_end_ps for r in tb.frames(FLOOD_ID_SDO))
+    assert sdo[0].t_start_ps - flood_end < 200 * PS_PER_US, "abort frame not sent promptly"
+    await check_flood_received(tb, t0, cnt0)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_rx_kept_while_sync_waits(dut):
+    """Purpose: the master keeps receiving while the SYNC it fired waits for the bus.
+
+    Verifies: St2 (T3) is not entered in the cycle after the TX2RTS fire, before the controller
+    shows TXB2 pending (else St12 would wait for TXB2 until the SYNC is on the bus). A flood of
+    0-byte frames with id 050h (they win every arbitration against SYNC 080h) runs over three
+    SYNC periods of 1 ms: no RX overflow, every frame counted, St12 at most ST12_BOUND_US, and
+    the SYNCs go out after the flood.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    await tb.host.sync_config(period_us=1_000)
+    await wait_syncs(tb, 0, 2)
+    cnt0 = await tb.host.counters()
+    t0 = sim_time_ps()
+    tb.raw.send(*flood(64, FLOOD_ID_SYNC))
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    t1 = sim_time_ps()
+    await wait_syncs(tb, t1, 2)
+    await check_flood_received(tb, t0, cnt0)
     check_clean(tb)
     await Timer(1, "ns")
 

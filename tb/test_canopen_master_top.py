@@ -378,7 +378,9 @@ async def run_pdo_cycle(dut):
     Verifies: four master TPDOs (200h+id: controlword + target position, every SYNC) reach the
     drives' RPDO1 (target position read inside each drive); four master RPDOs (180h+id:
     statusword + position actual) are received every cycle with consecutive sequence numbers;
-    an RTR on a master TPDO of type 253 is answered with its current data (St5 -> St8, T11).
+    an RTR on a master TPDO of type 253 is answered with its current data, once during the
+    cycle (TXB0 may be pending: the reply waits in the PDO engine, T24 then T20) and once with
+    TXB0 free (St5 -> St8, T11).
     """
     tb = SystemTB(dut)
     await boot_network(tb)
@@ -420,6 +422,15 @@ async def run_pdo_cycle(dut):
     got = rtr_replies()
     assert [bytes(r.msg.data) for r in got] == [b"\x34\x12"], got  # exactly one reply
     await tb.host.sync_config(period_us=0, enable=False)
+    # the same with TXB0 free (no SYNC cycle): the reply goes straight St5 -> St8 (T11); under
+    # the cycle above it may wait in the PDO engine (T24) and go from St1 (T20) once TXB0 is free
+    await Timer(1, "ms")
+    t11 = tb.fsm.covered.get("T11", 0)
+    tb.raw.send(can.Message(arbitration_id=0x2F0, is_remote_frame=True, dlc=2,
+                            is_extended_id=False))
+    await tb.wait_for(lambda: len(rtr_replies()) == 2, 2_000, 20, "reply to the second RTR")
+    assert bytes(rtr_replies()[1].msg.data) == b"\x34\x12"
+    assert tb.fsm.covered.get("T11", 0) == t11 + 1, "RTR with TXB0 free not answered by T11"
     tb.check_models_clean()
     merge_coverage(tb)
     await Timer(1, "ns")

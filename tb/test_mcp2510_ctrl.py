@@ -86,7 +86,7 @@ class TB:
                   "tx_fire_drop"])
         self.events = self.strobes.events
         self.ints: list[tuple[int, int, int]] = []  # (t, CANINTF, EFLG)
-        for sig in (dut.reinit_i, dut.tx_valid_i, dut.tx_fire_i, dut.tx_abort_i,
+        for sig in (dut.reinit_i, dut.tx_valid_i, dut.tx_fire_i, dut.tx_abort_i, dut.tx_cancel_i,
                     dut.status_req_i, dut.rx_ready_i, dut.tx_buf_i, dut.tx_txp_i, dut.tx_send_i,
                     dut.tx_id_i, dut.tx_ide_i, dut.tx_rtr_i, dut.tx_dlc_i, dut.tx_data_i):
             sig.value = 0
@@ -425,6 +425,46 @@ async def run_tx_errors_status_and_abort(dut):
     await tb.send(g, buf=1, txp=2)
     await tb.wait_for(lambda: len(tb.peer.received) == 1, 2_000, step_us=2)
     assert same_frame(tb.peer.received[0][1], g)
+    tb.check_no_violations()
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=60, timeout_unit="ms")
+async def run_tx_cancel_of_one_buffer(dut):
+    """Purpose: tx_cancel_i cancels one pending buffer and leaves the others pending.
+
+    Verifies: with nobody to acknowledge, frames in TXB1 and TXB0 are retried on the bus;
+    tx_cancel_i(1) sends BIT MODIFY TXB1CTRL.TXREQ = 0 (the frame on the wire ends and is not
+    retried), and after one longest frame READ STATUS: one tx_aborted_o(1) strobe, tx_pending_o
+    = 001, TXB1CTRL.TXREQ = 0 while TXB0 is still requested. When the peer returns, only the
+    TXB0 frame reaches it (the cancelled one never); TXB1 takes and sends a new frame.
+    """
+    tb = TB(dut, peer_bitrate=None)
+    await tb.reset_and_init()
+    f = can.Message(arbitration_id=0x602, data=b"\x40\x00\x10", is_extended_id=False)
+    g = can.Message(arbitration_id=0x181, data=b"\x11", is_extended_id=False)
+    await tb.send(f, buf=1, txp=2)
+    await tb.send(g, buf=0, txp=1)
+    await Timer(300, "us")
+    assert int(dut.tx_pending_o.value) == 0b011
+    spi_before = len(tb.spi_transactions())
+    await tb.pulse(dut.tx_cancel_i, 0b010)
+    await tb.wait_for(lambda: tb.count("tx_aborted", 1) == 1, 1_000, step_us=2)
+    assert int(dut.tx_pending_o.value) == 0b001, "TXB0 must stay pending, TXB1 be free"
+    assert not tb.chip.peek(R.TXB1CTRL) & R.TXBNCTRL_TXREQ
+    assert tb.chip.peek(R.TXB0CTRL) & R.TXBNCTRL_TXREQ
+    assert tb.count("tx_aborted", 0) == 0
+    mods = [bytes(t.mosi[:4]) for t in tb.spi_transactions()[spi_before:]
+            if t.mosi[:1] == bytes([R.INSTR_BIT_MODIFY])]
+    assert bytes([R.INSTR_BIT_MODIFY, R.TXB1CTRL, R.TXBNCTRL_TXREQ, 0x00]) in mods, mods
+    tb.peer._bitrate_bps = tb.bitrate
+    await tb.wait_for(lambda: len(tb.peer.received) == 1, 2_000, step_us=2)
+    assert same_frame(tb.peer.received[0][1], g)
+    h = can.Message(arbitration_id=0x603, data=b"\x80", is_extended_id=False)
+    await tb.send(h, buf=1, txp=2)
+    await tb.wait_for(lambda: len(tb.peer.received) == 2, 2_000, step_us=2)
+    assert same_frame(tb.peer.received[1][1], h)
+    assert not any(m.arbitration_id == 0x602 for _, m in tb.peer.received)
     tb.check_no_violations()
     await Timer(1, "ns")
 
