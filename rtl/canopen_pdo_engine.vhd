@@ -161,22 +161,9 @@ architecture rtl of canopen_pdo_engine is
     constant cnt_unexp_c : natural := 6;
     constant cnt_num_c   : natural := 7;
 
-    -- the larger of two naturals (VHDL-93 has no maximum)
-
-    function larger (a : natural; b : natural) return natural is
-    begin
-
-        if a > b then
-            return a;
-        end if;
-
-        return b;
-
-    end function larger;
-
     -- bound of rx_valid_i -> rx_done_o [cycles] (docs/canopen_pdo_engine.md): a remote frame
     -- N_TPDO + 8, a data frame N_RPDO + 2
-    constant rx_bound_c : positive := larger(N_TPDO + 8, N_RPDO + 2);
+    constant rx_bound_c : positive := max_nat(N_TPDO + 8, N_RPDO + 2);
 
     function check_config return boolean is
     begin
@@ -208,68 +195,6 @@ architecture rtl of canopen_pdo_engine is
     end function check_config;
 
     constant config_ok_c : boolean := check_config;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Helpers
-    -- ---------------------------------------------------------------------------------------------
-
-    -- window offset compare without arithmetic (no numeric_std warnings on an undriven bus)
-
-    function is_off (addr : std_logic_vector(5 downto 0); off : natural) return boolean is
-    begin
-
-        return addr = std_logic_vector(to_unsigned(off, 6));
-
-    end function is_off;
-
-    -- the first dlc bytes of a frame, the others zero (DLC 9..15 means 8 bytes)
-
-    function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
-        return std_logic_vector is
-
-        variable r : std_logic_vector(63 downto 0);
-
-    begin
-
-        r := v;
-
-        for j in 0 to 7 loop
-
-            if dlc(3) = '0' and unsigned(dlc(2 downto 0)) <= j then
-                r(8 * j + 7 downto 8 * j) := (others => '0');
-            end if;
-
-        end loop;
-
-        return r;
-
-    end function keep_bytes;
-
-    -- 0 or 1
-
-    function bit_int (b : std_logic) return natural is
-    begin
-
-        if b = '1' then
-            return 1;
-        end if;
-
-        return 0;
-
-    end function bit_int;
-
-    -- '1' if any bit is set (VHDL-93: no reduction operators)
-
-    function any_set (v : std_logic_vector) return std_logic is
-    begin
-
-        if unsigned(v) = 0 then
-            return '0';
-        end if;
-
-        return '1';
-
-    end function any_set;
 
     -- ---------------------------------------------------------------------------------------------
     -- Types
