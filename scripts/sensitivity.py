@@ -22,21 +22,13 @@ import re
 import sys
 from pathlib import Path
 
+from synth import sources  # rtl/files.f in compile order (scripts/ is on sys.path)
+
 ROOT = Path(__file__).resolve().parents[1]
-RTL = ROOT / "rtl"
 
 PROC_RE = re.compile(r"^\s*(\w+)\s*:\s*process\s*(?:\(([^)]*)\))?\s*(?:is)?\s*$", re.I | re.M)
 END_RE = re.compile(r"^\s*end\s+process\b", re.I | re.M)
 IDENT_RE = re.compile(r"[A-Za-z]\w*")
-
-
-def sources() -> list[Path]:
-    files = []
-    for line in (RTL / "files.f").read_text().splitlines():
-        line = line.split("#", 1)[0].strip()
-        if line:
-            files.append(RTL / line)
-    return files
 
 
 def strip(text: str) -> str:
