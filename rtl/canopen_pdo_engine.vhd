@@ -202,14 +202,6 @@ architecture rtl of canopen_pdo_engine is
 
     type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
 
-    type cram_t is array (0 to n_items_c - 1) of std_logic_vector(cw_w_c - 1 downto 0);
-
-    type sram_t is array (0 to n_items_c - 1) of std_logic_vector(sw_w_c - 1 downto 0);
-
-    type tram_t is array (0 to 2 * N_TPDO - 1) of std_logic_vector(63 downto 0);
-
-    type rram_t is array (0 to N_RPDO - 1) of std_logic_vector(rram_w_c - 1 downto 0);
-
     type tx_state_t is (
         S_IDLE, -- scan pointer looks at one item per cycle
         S_READ, -- frame being read (engine operation OP_TXRD)
@@ -278,35 +270,28 @@ architecture rtl of canopen_pdo_engine is
     -- RAMs (synchronous read, no reset)
     -- ---------------------------------------------------------------------------------------------
     -- configuration: copy A read by the engine, copy B by the host select (written by the host)
-    signal cram_a : cram_t;
-    signal cram_b : cram_t;
-    signal c_we   : std_logic;
-    signal c_wa   : natural range 0 to n_items_c - 1;
-    signal c_wd   : std_logic_vector(cw_w_c - 1 downto 0);
-    signal ca_q   : std_logic_vector(cw_w_c - 1 downto 0);
-    signal cb_q   : std_logic_vector(cw_w_c - 1 downto 0);
+    signal c_we : std_logic;
+    signal c_wa : natural range 0 to n_items_c - 1;
+    signal c_wd : std_logic_vector(cw_w_c - 1 downto 0);
+    signal ca_q : std_logic_vector(cw_w_c - 1 downto 0);
+    signal cb_q : std_logic_vector(cw_w_c - 1 downto 0);
     -- state: copy A read by the engine, copy B by the host select (written by the engine)
-    signal sram_a : sram_t;
-    signal sram_b : sram_t;
-    signal sa_q   : std_logic_vector(sw_w_c - 1 downto 0);
-    signal sb_q   : std_logic_vector(sw_w_c - 1 downto 0);
+    signal sa_q : std_logic_vector(sw_w_c - 1 downto 0);
+    signal sb_q : std_logic_vector(sw_w_c - 1 downto 0);
     -- host select read address of the copies B (the item being selected, else the selected one)
     signal hb_ra : natural range 0 to n_items_c - 1;
     -- TPDO data, word 2k + b = bank b of channel k; copy A read by the transmitter, copy B by
     -- the host (both written by the commit)
-    signal tram_a : tram_t;
-    signal tram_b : tram_t;
-    signal t_we   : std_logic;
-    signal t_wa   : natural range 0 to 2 * N_TPDO - 1;
-    signal t_wd   : std_logic_vector(63 downto 0);
-    signal ta_ra  : natural range 0 to 2 * N_TPDO - 1;
-    signal ta_q   : std_logic_vector(63 downto 0);
-    signal tb_ra  : natural range 0 to 2 * N_TPDO - 1;
-    signal tb_re  : std_logic;
-    signal tb_q   : std_logic_vector(63 downto 0);
+    signal t_we  : std_logic;
+    signal t_wa  : natural range 0 to 2 * N_TPDO - 1;
+    signal t_wd  : std_logic_vector(63 downto 0);
+    signal ta_ra : natural range 0 to 2 * N_TPDO - 1;
+    signal ta_q  : std_logic_vector(63 downto 0);
+    signal tb_ra : natural range 0 to 2 * N_TPDO - 1;
+    signal tb_re : std_logic;
+    signal tb_q  : std_logic_vector(63 downto 0);
     -- RPDO receive buffers: SYNC count (87..80), sequence (79..64), data (63..0); the output
     -- register is only loaded on a select, so it holds the host's snapshot
-    signal rram  : rram_t;
     signal rr_we : std_logic;
     signal rr_wa : natural range 0 to N_RPDO - 1;
     signal rr_wd : std_logic_vector(rram_w_c - 1 downto 0);
@@ -949,53 +934,65 @@ begin
 
     end process cfg_wd_proc;
 
-    cram_a_proc : process (clk_i) is
-    begin
+    cram_a_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => n_items_c,
+            WIDTH => cw_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => c_we,
+            waddr_i => c_wa,
+            wdata_i => c_wd,
+            re_i    => '1',
+            raddr_i => e_ra,
+            rdata_o => ca_q
+        );
 
-        if rising_edge(clk_i) then
-            if c_we = '1' then
-                cram_a(c_wa) <= c_wd;
-            end if;
-            ca_q <= cram_a(e_ra);
-        end if;
+    cram_b_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => n_items_c,
+            WIDTH => cw_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => c_we,
+            waddr_i => c_wa,
+            wdata_i => c_wd,
+            re_i    => '1',
+            raddr_i => hb_ra,
+            rdata_o => cb_q
+        );
 
-    end process cram_a_proc;
+    sram_a_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => n_items_c,
+            WIDTH => sw_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => x_we,
+            waddr_i => e_item,
+            wdata_i => x_wd,
+            re_i    => '1',
+            raddr_i => e_ra,
+            rdata_o => sa_q
+        );
 
-    cram_b_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if c_we = '1' then
-                cram_b(c_wa) <= c_wd;
-            end if;
-            cb_q <= cram_b(hb_ra);
-        end if;
-
-    end process cram_b_proc;
-
-    sram_a_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if x_we = '1' then
-                sram_a(e_item) <= x_wd;
-            end if;
-            sa_q <= sram_a(e_ra);
-        end if;
-
-    end process sram_a_proc;
-
-    sram_b_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if x_we = '1' then
-                sram_b(e_item) <= x_wd;
-            end if;
-            sb_q <= sram_b(hb_ra);
-        end if;
-
-    end process sram_b_proc;
+    sram_b_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => n_items_c,
+            WIDTH => sw_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => x_we,
+            waddr_i => e_item,
+            wdata_i => x_wd,
+            re_i    => '1',
+            raddr_i => hb_ra,
+            rdata_o => sb_q
+        );
 
     -- TPDO data: commit of the staging register into the inactive bank of the selected TPDO;
     -- the transmitter reads the active bank of its channel, the host select the latest
@@ -1050,29 +1047,35 @@ begin
 
     end process t_ram_ctrl_proc;
 
-    tram_a_proc : process (clk_i) is
-    begin
+    tram_a_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => 2 * N_TPDO,
+            WIDTH => 64
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => t_we,
+            waddr_i => t_wa,
+            wdata_i => t_wd,
+            re_i    => '1',
+            raddr_i => ta_ra,
+            rdata_o => ta_q
+        );
 
-        if rising_edge(clk_i) then
-            if t_we = '1' then
-                tram_a(t_wa) <= t_wd;
-            end if;
-            ta_q <= tram_a(ta_ra);
-        end if;
-
-    end process tram_a_proc;
-
-    tram_b_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if t_we = '1' then
-                tram_b(t_wa) <= t_wd;
-            end if;
-            tb_q <= tram_b(tb_ra);
-        end if;
-
-    end process tram_b_proc;
+    tram_b_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => 2 * N_TPDO,
+            WIDTH => 64
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => t_we,
+            waddr_i => t_wa,
+            wdata_i => t_wd,
+            re_i    => '1',
+            raddr_i => tb_ra,
+            rdata_o => tb_q
+        );
 
     -- RPDO data: stored by the receive match, read into the snapshot by the host select
     rr_we <= x_store;
@@ -1083,19 +1086,20 @@ begin
     rr_ra <= new_item - N_TPDO when new_item >= N_TPDO else
              0;
 
-    rram_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if rr_we = '1' then
-                rram(rr_wa) <= rr_wd;
-            end if;
-            if rr_re = '1' then
-                rr_q <= rram(rr_ra);
-            end if;
-        end if;
-
-    end process rram_proc;
+    rram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => N_RPDO,
+            WIDTH => rram_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => rr_we,
+            waddr_i => rr_wa,
+            wdata_i => rr_wd,
+            re_i    => rr_re,
+            raddr_i => rr_ra,
+            rdata_o => rr_q
+        );
 
     -- ---------------------------------------------------------------------------------------------
     -- Host window: selection, shadows, snapshots, staging register
