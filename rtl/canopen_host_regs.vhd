@@ -32,8 +32,13 @@
 --     the same cycle stays set (no event is lost). irq_o = OR(IRQ_STATUS and IRQ_ENABLE).
 --   * Counters: incremented by the cnt_*_i strobes (cnt_rx_overflow_i by its number of set
 --     bits), stop at FFFFFFFFh; CTRL.CLR_COUNTERS clears them (a clear wins over a strobe in
---     the same cycle). CNT_BITS < 32 narrows them (saturating at 2**CNT_BITS - 1, read
---     zero-extended) so that a bench can reach saturation; the register map says 32.
+--     the same cycle, a read after the clear returns 0). They live in a canopen_counter_bank
+--     (block RAM, one shared incrementer, a strobe in every cycle is counted): a CNT_* read
+--     drives the bank's read address in the read cycle and selects its registered data in the
+--     next one, like SDO_BUF; the count it returns may lag the strobes by at most 13 cycles
+--     (docs/canopen_counter_bank.md). CNT_BITS < 32 narrows them (saturating at
+--     2**CNT_BITS - 1, read zero-extended) so that a bench can reach saturation; the register
+--     map says 32.
 -- =================================================================================================
 
 library ieee;
@@ -330,11 +335,17 @@ architecture rtl of canopen_host_regs is
     -- sticky: the configuration list finished, cleared by the next ACFG_CTRL.START
     signal acfg_done : std_logic;
 
-    -- event counters, counter i (word REG_CNT_RX_FRAMES_C + i) in bits
-    -- CNT_BITS * (i + 1) - 1 .. CNT_BITS * i
-    signal cnt : std_logic_vector(CNT_BITS * cnt_num_c - 1 downto 0);
+    -- event counter amounts of this cycle, counter i (word REG_CNT_RX_FRAMES_C + i) in bits
+    -- 2 * i + 1 .. 2 * i
+    signal cnt_inc : std_logic_vector(2 * cnt_num_c - 1 downto 0);
     -- CTRL.CLR_COUNTERS written in this cycle
     signal cnt_clear : std_logic;
+    -- counter bank read port: counter number (address - CNT_RX_FRAMES), the address is a
+    -- counter, the count of the previous cycle's address
+    signal cnt_off   : unsigned(7 downto 0);
+    signal cnt_raddr : std_logic_vector(3 downto 0);
+    signal cnt_sel   : std_logic;
+    signal cnt_rdata : std_logic_vector(CNT_BITS - 1 downto 0);
 
     -- registered read data: multiplexer output, its register, SDO_BUF selected, valid
     signal rd_mux   : std_logic_vector(31 downto 0);
@@ -343,6 +354,8 @@ architecture rtl of canopen_host_regs is
     signal rd_valid : std_logic;
     -- PDO_WIN read: pdo_rdata_i selected
     signal rd_pdo : std_logic;
+    -- CNT_* read: the counter bank's read data selected
+    signal rd_cnt : std_logic;
 
 begin
 
@@ -596,44 +609,35 @@ begin
     end process cmd_data_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Event counters: saturating, cleared by CTRL.CLR_COUNTERS
+    -- Event counters: saturating, cleared by CTRL.CLR_COUNTERS, in a RAM with one incrementer
     -- ---------------------------------------------------------------------------------------------
-    cnt_proc : process (clk_i, rst_n_i) is
+    -- amount of counter i: 1 per strobe; cnt_rx_overflow_i its number of set bits (0..2)
+    cnt_inc <= '0' & cnt_emcy_i & '0' & cnt_can_error_i & '0' & cnt_guard_err_i
+               & '0' & cnt_hb_loss_i & '0' & cnt_sdo_abort_i & '0' & cnt_tx_error_i
+               & (cnt_rx_overflow_i(1) and cnt_rx_overflow_i(0))
+               & (cnt_rx_overflow_i(1) xor cnt_rx_overflow_i(0))
+               & '0' & cnt_malformed_i & '0' & cnt_unexpected_i & '0' & cnt_tx_frame_i
+               & '0' & cnt_rx_frame_i;
 
-        variable inc_v : std_logic_vector(cnt_num_c - 1 downto 0);
-        variable cnt_v : unsigned(CNT_BITS - 1 downto 0);
+    cnt_off   <= unsigned(avs_address_i) - REG_CNT_RX_FRAMES_C;
+    cnt_raddr <= std_logic_vector(cnt_off(3 downto 0));
+    cnt_sel   <= '1' when cnt_off < cnt_num_c else
+                 '0';
 
-    begin
-
-        if rst_n_i = '0' then
-            cnt <= (others => '0');
-        elsif rising_edge(clk_i) then
-            -- bit i: strobe of counter i (word REG_CNT_RX_FRAMES_C + i)
-            inc_v := cnt_emcy_i & cnt_can_error_i & cnt_guard_err_i & cnt_hb_loss_i
-                     & cnt_sdo_abort_i & cnt_tx_error_i
-                     & (cnt_rx_overflow_i(1) or cnt_rx_overflow_i(0))
-                     & cnt_malformed_i & cnt_unexpected_i & cnt_tx_frame_i & cnt_rx_frame_i;
-
-            for i in 0 to cnt_num_c - 1 loop
-
-                cnt_v := unsigned(cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i));
-                if cnt_clear = '1' then
-                    cnt_v := (others => '0');
-                elsif inc_v(i) = '1' then
-                    cnt_v := sat_inc(cnt_v);
-                    -- cnt_rx_overflow_i = "11": two frames lost in one cycle
-                    if i = REG_CNT_RX_OVERFLOW_C - REG_CNT_RX_FRAMES_C
-                       and cnt_rx_overflow_i = "11" then
-                        cnt_v := sat_inc(cnt_v);
-                    end if;
-                end if;
-                cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i) <= std_logic_vector(cnt_v);
-
-            end loop;
-
-        end if;
-
-    end process cnt_proc;
+    cnt_bank_inst : entity work.canopen_counter_bank
+        generic map (
+            N_CNT    => cnt_num_c,
+            CNT_BITS => CNT_BITS,
+            INC_BITS => 2
+        )
+        port map (
+            clk_i     => clk_i,
+            rst_n_i   => rst_n_i,
+            inc_i     => cnt_inc,
+            clr_i     => cnt_clear,
+            rd_addr_i => cnt_raddr,
+            rd_data_o => cnt_rdata
+        );
 
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer: OR of the words whose (disjoint) address matches; registered below
@@ -641,7 +645,7 @@ begin
     read_mux_proc : process (acfg_busy_i, acfg_done, acfg_entry, acfg_fail_abort_i,
                              acfg_fail_entry_i, acfg_fail_node_i, acfg_fail_sel, acfg_index,
                              acfg_node, acfg_nodes, acfg_nodes_fail_i, acfg_nodes_ok_i, acfg_ref,
-                             acfg_refused_i, acfg_size, acfg_sub, avs_address_i, bus_off_i, cnt,
+                             acfg_refused_i, acfg_size, acfg_sub, avs_address_i, bus_off_i,
                              ctrl_busy_i, eflg_i, emcy_count_i, emcy_data_i, emcy_lost_i,
                              emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
                              init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
@@ -697,12 +701,7 @@ begin
             or at(rec_i, CAN_STATUS_REC_HI_C, CAN_STATUS_REC_LO_C)
             or at(eflg_i, CAN_STATUS_EFLG_HI_C, CAN_STATUS_EFLG_LO_C));
 
-        for i in 0 to cnt_num_c - 1 loop
-
-            put(REG_CNT_RX_FRAMES_C + i,
-                at(cnt(CNT_BITS * i + CNT_BITS - 1 downto CNT_BITS * i), CNT_BITS - 1, 0));
-
-        end loop;
+        -- CNT_*: the counter bank's registered read data, selected after the read (rd_cnt)
 
         for k in 0 to MAX_NODES - 1 loop
 
@@ -798,11 +797,13 @@ begin
             rd_valid <= '0';
             rd_buf   <= '0';
             rd_pdo   <= '0';
+            rd_cnt   <= '0';
         elsif rising_edge(clk_i) then
             rd_valid <= avs_read_i;
             if avs_read_i = '1' then
                 rd_buf <= buf_sel;
                 rd_pdo <= pdo_sel;
+                rd_cnt <= cnt_sel;
             end if;
         end if;
 
@@ -810,6 +811,7 @@ begin
 
     avs_readdata_o      <= sdo_buf_rdata_i when rd_buf = '1' else
                            pdo_rdata_i when rd_pdo = '1' else
+                           std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
                            rd_data;
     avs_readdatavalid_o <= rd_valid;
 

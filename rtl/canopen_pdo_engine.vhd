@@ -30,6 +30,8 @@
 --     engine does one read-modify-write of one item at a time: the receive match, the frame
 --     read, the frame-taken update, and a housekeeping sweep (SYNC, 100 us tick, window end)
 --     that visits every item once.
+--   * The seven PDO_CNT_* counters are a canopen_counter_bank (RAM, one shared saturating
+--     incrementer): every strobe is counted, a read may lag the strobes by up to 9 cycles.
 --   * Received frames (rx_valid_i, FSM St5): compared with one channel per cycle (data frames
 --     with the RPDOs, remote frames with the TPDOs), rx_done_o 2 + k cycles after rx_valid_i
 --     for channel k; an RTR for a TPDO is answered when its reply frame is on tx_req_o
@@ -199,8 +201,6 @@ architecture rtl of canopen_pdo_engine is
     -- ---------------------------------------------------------------------------------------------
     -- Types
     -- ---------------------------------------------------------------------------------------------
-
-    type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
 
     type tx_state_t is (
         S_IDLE, -- scan pointer looks at one item per cycle
@@ -397,8 +397,15 @@ architecture rtl of canopen_pdo_engine is
     signal sel_poll : std_logic;
     -- read data register
     signal rdata_q : std_logic_vector(31 downto 0);
-    -- global counters (PDO_CNT_*)
-    signal cnt : cnt_arr_t;
+    -- global counters (PDO_CNT_*) in a counter bank: this cycle's strobes (bit i: counter i),
+    -- read address (offset - PDO_CNT_RX), the read address is a counter, registered: the
+    -- bank's read data is selected, and that read data
+    signal cnt_inc   : std_logic_vector(cnt_num_c - 1 downto 0);
+    signal cnt_off   : unsigned(5 downto 0);
+    signal cnt_raddr : std_logic_vector(2 downto 0);
+    signal cnt_sel   : std_logic;
+    signal rd_cnt    : std_logic;
+    signal cnt_rdata : std_logic_vector(31 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
     -- Transmitter
@@ -1659,41 +1666,49 @@ begin
     end process flags_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Global counters (PDO_CNT_*): saturating, counted from the strobes
+    -- Global counters (PDO_CNT_*): saturating, counted from the strobes, in a RAM with one
+    -- shared incrementer (canopen_counter_bank: a read lags the strobes by at most 9 cycles)
     -- ---------------------------------------------------------------------------------------------
-    cnt_proc : process (clk_i, rst_n_i) is
+    cnt_inc(cnt_rx_c)    <= ev_rx_q;
+    cnt_inc(cnt_tx_c)    <= tx_ack_i when tx_st = S_WAIT else
+                            '0';
+    cnt_inc(cnt_rtr_c)   <= ev_rtr_q;
+    cnt_inc(cnt_len_c)   <= ev_len_q;
+    cnt_inc(cnt_miss_c)  <= ev_miss_q;
+    cnt_inc(cnt_late_c)  <= ev_late_q;
+    cnt_inc(cnt_unexp_c) <= rx_unexp_q;
 
-        variable inc_v : std_logic_vector(cnt_num_c - 1 downto 0);
+    cnt_off   <= unsigned(reg_addr_i) - off_cnt_c;
+    cnt_raddr <= std_logic_vector(cnt_off(2 downto 0));
+    cnt_sel   <= '1' when cnt_off < cnt_num_c else
+                 '0';
 
+    cnt_bank_inst : entity work.canopen_counter_bank
+        generic map (
+            N_CNT    => cnt_num_c,
+            CNT_BITS => 32,
+            INC_BITS => 1
+        )
+        port map (
+            clk_i     => clk_i,
+            rst_n_i   => rst_n_i,
+            inc_i     => cnt_inc,
+            clr_i     => clr,
+            rd_addr_i => cnt_raddr,
+            rd_data_o => cnt_rdata
+        );
+
+    -- a PDO_CNT_* read selects the bank's registered read data
+    rd_cnt_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
-            cnt <= (others => (others => '0'));
+            rd_cnt <= '0';
         elsif rising_edge(clk_i) then
-            inc_v           := (others => '0');
-            inc_v(cnt_rx_c) := ev_rx_q;
-            if tx_st = S_WAIT then
-                inc_v(cnt_tx_c) := tx_ack_i;
-            end if;
-            inc_v(cnt_rtr_c)   := ev_rtr_q;
-            inc_v(cnt_len_c)   := ev_len_q;
-            inc_v(cnt_miss_c)  := ev_miss_q;
-            inc_v(cnt_late_c)  := ev_late_q;
-            inc_v(cnt_unexp_c) := rx_unexp_q;
-
-            for i in 0 to cnt_num_c - 1 loop
-
-                if clr = '1' then
-                    cnt(i) <= (others => '0');
-                elsif inc_v(i) = '1' then
-                    cnt(i) <= sat_inc(cnt(i));
-                end if;
-
-            end loop;
-
+            rd_cnt <= cnt_sel;
         end if;
 
-    end process cnt_proc;
+    end process rd_cnt_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
@@ -1781,17 +1796,9 @@ begin
                 v := at(t_due, N_TPDO - 1, 0);
             elsif is_off(a, off_tx_pend_c) then
                 v := at(t_pend, N_TPDO - 1, 0);
-            else
-
-                for i in 0 to cnt_num_c - 1 loop
-
-                    if is_off(a, off_cnt_c + i) then
-                        v := std_logic_vector(cnt(i));
-                    end if;
-
-                end loop;
-
             end if;
+
+            -- PDO_CNT_*: the counter bank's read data, selected after the edge (rd_cnt)
 
             rdata_q <= v;
         end if;
@@ -1801,7 +1808,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Outputs
     -- ---------------------------------------------------------------------------------------------
-    reg_rdata_o     <= rdata_q;
+    reg_rdata_o     <= cnt_rdata when rd_cnt = '1' else
+                       rdata_q;
     rx_done_o       <= rx_done_q;
     rx_reply_o      <= rx_reply_q;
     rx_unexpected_o <= rx_unexp_q;

@@ -54,6 +54,9 @@ EVENTS = {"NODE": "ev_node_i", "EMCY": "ev_emcy_i", "SDO_DONE": "ev_sdo_done_i",
           "INIT": "ev_init_i", "CONFIG": "ev_acfg_done_i"}
 #: every IRQ_STATUS bit
 IRQ_ALL = (1 << len(EVENTS)) - 1
+#: documented read lag of the CNT_* registers (docs/canopen_counter_bank.md): S + 2 cycles with
+#: the sweep period S = 11 counters; a read this many cycles after a strobe shows it
+CNT_LAG = 13
 COUNT_INPUTS = {"RX_FRAMES": "cnt_rx_frame_i", "TX_FRAMES": "cnt_tx_frame_i",
                 "UNEXPECTED": "cnt_unexpected_i", "MALFORMED": "cnt_malformed_i",
                 "RX_OVERFLOW": "cnt_rx_overflow_i", "TX_ERROR": "cnt_tx_error_i",
@@ -635,6 +638,7 @@ async def run_counters_increment_saturate_clear(dut):
             await FallingEdge(dut.clk_i)
         for name in chosen:
             getattr(dut, COUNT_INPUTS[name]).value = 0
+    await ClockCycles(dut.clk_i, CNT_LAG)
     got = await host.counters()
     assert got == {k.lower(): min(v, top) for k, v in expected.items()}, got
     # clear wins over a simultaneous strobe
@@ -643,8 +647,10 @@ async def run_counters_increment_saturate_clear(dut):
     if tb.cnt_bits <= 8:
         for name in COUNTER_NAMES:
             await tb.strobe(COUNT_INPUTS[name], 1, cycles=top - 1)
+            await ClockCycles(dut.clk_i, CNT_LAG)
             assert await host.read(f"CNT_{name}") == top - 1, name
             await tb.strobe(COUNT_INPUTS[name], 3 if name == "RX_OVERFLOW" else 1, cycles=3)
+            await ClockCycles(dut.clk_i, CNT_LAG)
             assert await host.read(f"CNT_{name}") == top, name
         await host.clear_counters()
         assert set((await host.counters()).values()) == {0}
