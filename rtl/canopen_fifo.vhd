@@ -21,6 +21,10 @@
 --   * full_o: DEPTH entries stored (including the one written in the previous cycle); a push is
 --     then accepted only together with a pop.
 --   * Any DEPTH 1..1024 (not only powers of two); rst_n_i empties it (the RAM has no reset).
+--   * MIN_RAM_WORDS: the RAM is declared with max(DEPTH, MIN_RAM_WORDS) words, the words past
+--     DEPTH never addressed. A shallow, wide FIFO costs the same M9Ks either way (an M9K has
+--     256 words at x36); a flow that maps memories by fill ratio (yosys: at least 2 % of the
+--     M9Ks used) then takes it as block RAM instead of DEPTH x WIDTH flip-flops.
 -- =================================================================================================
 
 library ieee;
@@ -32,24 +36,27 @@ library work;
 
 entity canopen_fifo is
     generic (
-        WIDTH : positive                 := 8; -- bits per entry
-        DEPTH : positive range 1 to 1024 := 4  -- entries
+        WIDTH         : positive                 := 8; -- bits per entry
+        DEPTH         : positive range 1 to 1024 := 4; -- entries
+        MIN_RAM_WORDS : natural range 0 to 1024  := 0  -- RAM words at least (see above)
     );
     port (
-        clk_i   : in    std_logic;                                        -- system clock
-        rst_n_i : in    std_logic;                                        -- async reset, active low
-        push_i  : in    std_logic;                                        -- store data_i
-        data_i  : in    std_logic_vector(WIDTH - 1 downto 0);             -- entry to store
-        full_o  : out   std_logic;                                        -- no room without a pop
-        ovf_o   : out   std_logic;                                        -- push_i refused (full)
-        pop_i   : in    std_logic;                                        -- drop the head
-        empty_o : out   std_logic;                                        -- no entry visible
-        data_o  : out   std_logic_vector(WIDTH - 1 downto 0);             -- head (when not empty)
-        count_o : out   std_logic_vector(clog2(DEPTH + 1) - 1 downto 0)   -- entries visible
+        clk_i   : in    std_logic;                                      -- system clock
+        rst_n_i : in    std_logic;                                      -- async reset, active low
+        push_i  : in    std_logic;                                      -- store data_i
+        data_i  : in    std_logic_vector(WIDTH - 1 downto 0);           -- entry to store
+        full_o  : out   std_logic;                                      -- no room without a pop
+        ovf_o   : out   std_logic;                                      -- push_i refused (full)
+        pop_i   : in    std_logic;                                      -- drop the head
+        empty_o : out   std_logic;                                      -- no entry visible
+        data_o  : out   std_logic_vector(WIDTH - 1 downto 0);           -- head (when not empty)
+        count_o : out   std_logic_vector(clog2(DEPTH + 1) - 1 downto 0) -- entries visible
     );
 end entity canopen_fifo;
 
 architecture rtl of canopen_fifo is
+
+    constant ram_words_c : positive := max_nat(DEPTH, MIN_RAM_WORDS);
 
     subtype ptr_t is natural range 0 to DEPTH - 1;
 
@@ -115,7 +122,7 @@ begin
     -- read every cycle at the next head: the RAM's output register is the head
     ram_inst : entity work.canopen_sdp_ram
         generic map (
-            DEPTH => DEPTH,
+            DEPTH => ram_words_c,
             WIDTH => WIDTH
         )
         port map (

@@ -417,8 +417,10 @@ architecture rtl of mcp2510_ctrl is
     signal rsp_valid : std_logic;
     signal rsp_rdata : std_logic_vector(111 downto 0);
 
-    -- RX FIFO: id(29) ide rtr dlc(4) data(64) buf = 100 bits
-    constant fifo_w_c : natural := 100;
+    -- RX FIFO: id(29) ide rtr dlc(4) data(64) buf = 100 bits; its RAM declared with at least
+    -- 16 words (free in the 3 M9K that 100 bits need; yosys maps 4 x 100 bits to flip-flops)
+    constant fifo_w_c         : natural := 100;
+    constant fifo_ram_words_c : natural := 16;
 
     -- (canopen_fifo on block RAM): push of a decoded frame, the frame, no room for another one,
     -- no frame visible, the head
@@ -1487,8 +1489,9 @@ begin
     -- ---------------------------------------------------------------------------------------------
     rx_fifo_inst : entity work.canopen_fifo
         generic map (
-            WIDTH => fifo_w_c,
-            DEPTH => RX_FIFO_DEPTH
+            WIDTH         => fifo_w_c,
+            DEPTH         => RX_FIFO_DEPTH,
+            MIN_RAM_WORDS => fifo_ram_words_c
         )
         port map (
             clk_i   => clk_i,

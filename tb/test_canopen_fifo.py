@@ -176,9 +176,10 @@ async def run_checker_can_fail(dut):
 
 
 @pytest.mark.sim
-@pytest.mark.parametrize("generics", [{"WIDTH": 12, "DEPTH": 1}, {"WIDTH": 12, "DEPTH": 4},
+@pytest.mark.parametrize("generics", [{"WIDTH": 12, "DEPTH": 1},
+                                      {"WIDTH": 12, "DEPTH": 4, "MIN_RAM_WORDS": 16},
                                       {"WIDTH": 103, "DEPTH": 5}],
-                         ids=["depth1", "depth4", "depth5-w103"])
+                         ids=["depth1", "depth4-ram16", "depth5-w103"])
 def test_canopen_fifo(request, generics):
     run_cocotb(toplevel="canopen_fifo", module="tb.test_canopen_fifo", name=request.node.name,
                parameters=generics, stop_time_ms=20)
