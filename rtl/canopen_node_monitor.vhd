@@ -572,7 +572,13 @@ begin
             if sw_phase = '1' then
                 sw_phase <= '0';
                 sw_slot  <= next_slot(sw_slot);
-                sw_1h    <= sw_1h(MAX_NODES - 2 downto 0) & sw_1h(MAX_NODES - 1);
+
+                for k in 0 to MAX_NODES - 1 loop
+
+                    sw_1h((k + 1) mod MAX_NODES) <= sw_1h(k);
+
+                end loop;
+
             elsif rx_state = S_RX_IDLE and rx_valid_i = '0' then
                 sw_phase <= '1';
                 eng_slot <= sw_slot;
@@ -671,11 +677,12 @@ begin
 
     begin
 
-        word_v := ram_rdata;
-
-        if v_valid = '0' then
-            word_v := (others => '0');
-        end if;
+        -- a slot not visited since reset: not armed, not running, toggle 0 (the counters are
+        -- only read while armed / running, so they need no masking)
+        word_v            := ram_rdata;
+        word_v(w_armed_c) := ram_rdata(w_armed_c) and v_valid;
+        word_v(w_run_c)   := ram_rdata(w_run_c) and v_valid;
+        word_v(w_exp_c)   := ram_rdata(w_exp_c) and v_valid;
 
         sub_v   := unsigned(word_v(w_sub_c + 15 downto w_sub_c));
         fac_v   := unsigned(word_v(w_fac_c + 7 downto w_fac_c));
