@@ -40,6 +40,7 @@ library ieee;
 
 library work;
     use work.canopen_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity canopen_node_monitor is
     generic (
@@ -116,6 +117,18 @@ architecture rtl of canopen_node_monitor is
     constant node_none_c      : node_id_t                    := (others => '0');
     -- EMCY FIFO entry: node-ID (7) & data (64) & time (32)
     constant emcy_w_c : natural := 7 + 64 + 32;
+    -- slot word in the slot RAM: loss timer sub (16) and fac (8), guard period counter (16),
+    -- armed, guarding running, expected toggle, node-ID and mode of the last visit (a change
+    -- restarts the slot)
+    constant w_sub_c   : natural := 0;  -- 15..0
+    constant w_fac_c   : natural := 16; -- 23..16
+    constant w_gcnt_c  : natural := 24; -- 39..24
+    constant w_armed_c : natural := 40;
+    constant w_run_c   : natural := 41;
+    constant w_exp_c   : natural := 42;
+    constant w_node_c  : natural := 43; -- 49..43
+    constant w_mode_c  : natural := 50; -- 51..50
+    constant slot_w_c  : natural := 52;
 
     function check_config return boolean is
     begin
@@ -123,7 +136,8 @@ architecture rtl of canopen_node_monitor is
         assert MAX_NODES <= 32 and EMCY_DEPTH >= 2 and EMCY_DEPTH <= 64
             report "canopen_node_monitor: MAX_NODES must be 1..32, EMCY_DEPTH 2..64"
             severity failure;
-        report "canopen_node_monitor: " & integer'image(MAX_NODES) & " slots, EMCY FIFO "
+        report "canopen_node_monitor: " & integer'image(MAX_NODES) & " slots (RAM "
+               & integer'image(MAX_NODES) & " x " & integer'image(slot_w_c) & " bits), EMCY FIFO "
                & integer'image(EMCY_DEPTH) & " x " & integer'image(emcy_w_c) & " bits"
             severity note;
         return true;
@@ -138,23 +152,15 @@ architecture rtl of canopen_node_monitor is
 
     subtype slot_t is natural range 0 to MAX_NODES - 1;
 
-    subtype emcy_ptr_t is natural range 0 to EMCY_DEPTH - 1;
-
     type vec7_array_t is array (0 to MAX_NODES - 1) of std_logic_vector(6 downto 0);
 
     type vec32_array_t is array (0 to MAX_NODES - 1) of std_logic_vector(31 downto 0);
-
-    type u16_array_t is array (0 to MAX_NODES - 1) of unsigned(15 downto 0);
-
-    type u8_array_t is array (0 to MAX_NODES - 1) of unsigned(7 downto 0);
-
-    type emcy_mem_t is array (0 to EMCY_DEPTH - 1) of std_logic_vector(emcy_w_c - 1 downto 0);
 
     -- receive sequencer
 
     type rx_state_t is (
         S_RX_IDLE,  -- wait for rx_valid_i
-        S_RX_MATCH, -- classify the frame, find the slot of its node
+        S_RX_MATCH, -- classify the frame, find the slot of its node, read its slot word
         S_RX_APPLY, -- update the slot / push the EMCY, report (unless a reply waits)
         S_RX_REPLY  -- autostart requested: report once tx_req_o shows it
     );
@@ -170,16 +176,23 @@ architecture rtl of canopen_node_monitor is
     -- ---------------------------------------------------------------------------------------------
     -- Signals
     -- ---------------------------------------------------------------------------------------------
-    -- received frame, latched with rx_valid_i (datapath) with time_ms_i at that moment
+    -- received frame, latched with rx_valid_i (datapath) with time_ms_i at that moment (of the
+    -- data only the state byte: an EMCY goes into its FIFO at that edge)
     signal rx_id_q   : cob_id_t;
     signal rx_rtr_q  : std_logic;
     signal rx_dlc_q  : std_logic_vector(3 downto 0);
-    signal rx_data_q : std_logic_vector(63 downto 0);
+    signal rx_data_q : std_logic_vector(7 downto 0);
     signal rx_time_q : std_logic_vector(31 downto 0);
     -- receive sequencer state, class of the frame, one-hot slot of its node (first match)
     signal rx_state : rx_state_t;
     signal rx_class : rx_class_t;
     signal rx_hit   : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- slots whose node-ID is the frame's (registered with the latch)
+    signal rx_eq_q : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- slot matcher (S_RX_MATCH): one-hot first slot with the frame's node, its index, any
+    signal match_hit : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal match_idx : slot_t;
+    signal match_any : std_logic;
     -- apply stage: error-control frame, its state byte and toggle bit, what it leads to
     signal rx_apply          : std_logic;
     signal rx_state_byte     : std_logic_vector(6 downto 0);
@@ -187,9 +200,49 @@ architecture rtl of canopen_node_monitor is
     signal apply_reply       : std_logic;
     signal apply_unsolicited : std_logic;
 
-    -- configuration seen in the previous cycle (a change of node-ID or mode restarts a slot)
-    signal cfg_node_q : std_logic_vector(7 * MAX_NODES - 1 downto 0);
-    signal cfg_mode_q : std_logic_vector(2 * MAX_NODES - 1 downto 0);
+    -- slot RAM: read address (this cycle), slot word read (next cycle), word written back
+    signal ram_raddr : slot_t;
+    signal ram_rdata : std_logic_vector(slot_w_c - 1 downto 0);
+    signal one       : std_logic;
+    -- slot engine: the slot read in the previous cycle (visited in this one), a sweep visit
+    -- in this cycle, the next slot of the sweep, a visit (sweep or frame) in this cycle
+    signal eng_slot : slot_t;
+    signal sw_phase : std_logic;
+    signal sw_slot  : slot_t;
+    signal sw_1h    : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- the slot read in this cycle, one-hot
+    signal rd_1h : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal visit : std_logic;
+    -- configuration of the slot read in this cycle (ram_raddr), and registered: of eng_slot
+    -- (shared datapath), with its heartbeat / guarding / supervision flags and its valid bit
+    signal m_node     : node_id_t;
+    signal m_mode     : std_logic_vector(1 downto 0);
+    signal m_time     : unsigned(15 downto 0);
+    signal m_life     : unsigned(7 downto 0);
+    signal m_valid    : std_logic;
+    signal v_node     : node_id_t;
+    signal v_mode     : std_logic_vector(1 downto 0);
+    signal v_time     : unsigned(15 downto 0);
+    signal v_life     : unsigned(7 downto 0);
+    signal v_hb       : boolean;
+    signal v_guard    : boolean;
+    signal v_sup      : boolean;
+    signal v_time_le1 : boolean;
+    signal v_valid    : std_logic;
+    -- result of the visit: slot word, node heard, boot-up, toggle error, configuration
+    -- changed, RTR outstanding, loss / RTR due at the next tick
+    signal vis_word     : std_logic_vector(slot_w_c - 1 downto 0);
+    signal vis_heard    : std_logic;
+    signal vis_bootup   : std_logic;
+    signal vis_toggle   : std_logic;
+    signal vis_changed  : std_logic;
+    signal vis_out      : std_logic;
+    signal vis_due_loss : std_logic;
+    signal vis_due_rtr  : std_logic;
+    -- the next tick is the first RTR of the slot (guarding starts); request the RTR now (first
+    -- tick of a slot not visited since reset)
+    signal vis_due_first : std_logic;
+    signal vis_rtr_now   : std_logic;
 
     -- per-slot status
     signal nmt_q    : vec7_array_t;
@@ -198,53 +251,89 @@ architecture rtl of canopen_node_monitor is
     signal lost_q   : std_logic_vector(MAX_NODES - 1 downto 0);
     signal toggle_q : std_logic_vector(MAX_NODES - 1 downto 0);
     signal bootup_q : std_logic_vector(MAX_NODES - 1 downto 0);
-    -- per-slot loss timer: remaining ms = fac * G + sub (heartbeat: fac = 0, sub <= T)
-    signal armed_q : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal sub_q   : u16_array_t;
-    signal fac_q   : u8_array_t;
-    -- per-slot guarding: running, ms to the next RTR, expected toggle, an RTR went out unanswered
-    signal grd_run_q : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal gcnt_q    : u16_array_t;
-    signal exp_tog_q : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal rtr_out_q : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- per-slot engine flags: slot word written since reset, a tick not yet applied to the slot
+    -- word, loss / RTR due at the next tick (from the last visit), an RTR went out unanswered
+    signal valid_q     : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal tick_pend_q : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal due_loss_q  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal due_rtr_q   : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal due_first_q : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal rtr_out_q   : std_logic_vector(MAX_NODES - 1 downto 0);
     -- per-slot pending transmit requests
     signal pend_rtr_q   : std_logic_vector(MAX_NODES - 1 downto 0);
     signal pend_start_q : std_logic_vector(MAX_NODES - 1 downto 0);
     signal pend_reset_q : std_logic_vector(MAX_NODES - 1 downto 0);
 
-    -- transmit arbiter: frame presented, its slot and kind, round-robin start slot
-    signal tx_req     : std_logic;
-    signal tx_slot    : slot_t;
-    signal tx_kind    : tx_kind_t;
-    signal rr_ptr     : slot_t;
+    -- transmit arbiter: a slot taken (its frame follows), its kind, round robin (the slots at or
+    -- after the pointer), the pick: valid, one-hot slot
+    signal tx_req   : std_logic;
+    signal tx_kind  : tx_kind_t;
+    signal rr_mask  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal pick_sel : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- the request's slot one-hot, its frame on tx_*_o (tx_req_o)
+    signal tx_sel     : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal tx_vld     : std_logic;
     signal pick_valid : std_logic;
-    signal pick_slot  : slot_t;
-    signal pick_kind  : tx_kind_t;
 
-    -- EMCY FIFO: block RAM with a synchronous read of the next head, write/read pointers,
-    -- entries readable by the host, a push of the previous cycle (readable from now on)
-    signal emcy_mem    : emcy_mem_t;
-    signal emcy_q      : std_logic_vector(emcy_w_c - 1 downto 0);
-    signal emcy_wr     : emcy_ptr_t;
-    signal emcy_rd     : emcy_ptr_t;
-    signal emcy_rd_nxt : emcy_ptr_t;
-    signal emcy_count  : natural range 0 to EMCY_DEPTH;
-    signal emcy_push_d : std_logic;
-    signal emcy_fill   : natural range 0 to EMCY_DEPTH + 1;
+    -- EMCY FIFO: entry to push (node, data, time), push request of the apply stage, refused
+    -- (full), head, entries visible, an accepted push of the previous cycle, sticky loss
+    signal emcy_din    : std_logic_vector(emcy_w_c - 1 downto 0);
     signal emcy_push   : std_logic;
-    signal emcy_pop    : std_logic;
+    signal emcy_ovf    : std_logic;
+    signal emcy_q      : std_logic_vector(emcy_w_c - 1 downto 0);
+    signal emcy_count  : std_logic_vector(clog2(EMCY_DEPTH + 1) - 1 downto 0);
+    signal emcy_push_d : std_logic;
     signal emcy_lost   : std_logic;
 
-    function next_ptr (p : emcy_ptr_t) return emcy_ptr_t is
+    -- the lowest set bit of v, one-hot (prefix ORs, no chain through the bits)
+
+    function low_bit (v : std_logic_vector(MAX_NODES - 1 downto 0))
+        return std_logic_vector is
+
+        variable r : std_logic_vector(MAX_NODES - 1 downto 0);
+
     begin
 
-        if p = EMCY_DEPTH - 1 then
-            return 0;
+        r(0) := v(0);
+
+        for k in 1 to MAX_NODES - 1 loop
+
+            r(k) := v(k) and not or_reduce(v(k - 1 downto 0));
+
+        end loop;
+
+        return r;
+
+    end function low_bit;
+
+    -- the index of a one-hot vector (bit b of the index: an OR over the slots with bit b set)
+
+    function one_hot_index (v : std_logic_vector(MAX_NODES - 1 downto 0)) return slot_t is
+
+        variable m : std_logic_vector(MAX_NODES - 1 downto 0);
+        variable r : unsigned(4 downto 0);
+
+    begin
+
+        for b in 0 to 4 loop
+
+            for k in 0 to MAX_NODES - 1 loop
+
+                m(k) := to_unsigned(k, 5)(b);
+
+            end loop;
+
+            r(b) := or_reduce(v and m);
+
+        end loop;
+
+        if to_integer(r) > MAX_NODES - 1 then
+            return MAX_NODES - 1; -- never for a one-hot v (keeps the range for simulation)
         end if;
 
-        return p + 1;
+        return to_integer(r);
 
-    end function next_ptr;
+    end function one_hot_index;
 
     function next_slot (s : slot_t) return slot_t is
     begin
@@ -270,23 +359,50 @@ begin
                 rx_id_q   <= rx_id_i;
                 rx_rtr_q  <= rx_rtr_i;
                 rx_dlc_q  <= rx_dlc_i;
-                rx_data_q <= rx_data_i;
+                rx_data_q <= rx_data_i(7 downto 0);
                 rx_time_q <= time_ms_i;
+
+                for k in 0 to MAX_NODES - 1 loop
+
+                    if cfg_node_i(7 * k + 6 downto 7 * k) /= node_none_c
+                       and cfg_node_i(7 * k + 6 downto 7 * k) = node_of(rx_id_i) then
+                        rx_eq_q(k) <= '1';
+                    else
+                        rx_eq_q(k) <= '0';
+                    end if;
+
+                end loop;
+
             end if;
         end if;
 
     end process rx_latch_proc;
 
+    -- slot matcher: the first slot whose node-ID is the frame's (slot RAM read address in
+    -- S_RX_MATCH); the compares are registered with the frame latch (rx_eq_q)
+    match_proc : process (rx_eq_q) is
+
+        variable hit_v : std_logic_vector(MAX_NODES - 1 downto 0); -- the first slot
+
+    begin
+
+        hit_v := low_bit(rx_eq_q);
+
+        match_hit <= hit_v;
+        match_idx <= one_hot_index(hit_v);
+        match_any <= or_reduce(rx_eq_q);
+
+    end process match_proc;
+
     -- ---------------------------------------------------------------------------------------------
-    -- Receive sequencer: latch (rx_latch_proc), classify and find the slot, apply (slot_proc /
-    -- the EMCY FIFO) and report; an autostart reply is reported once tx_req_o shows a frame.
+    -- Receive sequencer: latch (rx_latch_proc), classify and find the slot (its word is read
+    -- from the slot RAM), apply (the shared slot datapath / the EMCY FIFO) and report; an
+    -- autostart reply is reported once tx_req_o shows a frame.
     -- Classification: RTR, SYNC and other function codes are unexpected; then a wrong DLC is
     -- malformed; then an error-control frame from a node in no slot is unexpected.
     -- ---------------------------------------------------------------------------------------------
     rx_seq_proc : process (clk_i, rst_n_i) is
 
-        variable first_v : boolean;
-        variable hit_v   : std_logic_vector(MAX_NODES - 1 downto 0);
         variable class_v : rx_class_t;
 
     begin
@@ -315,25 +431,12 @@ begin
 
                 when S_RX_MATCH =>
 
-                    hit_v   := (others => '0');
-                    first_v := true;
-
-                    for k in 0 to MAX_NODES - 1 loop
-
-                        if first_v and cfg_node_i(7 * k + 6 downto 7 * k) /= node_none_c
-                           and cfg_node_i(7 * k + 6 downto 7 * k) = node_of(rx_id_q) then
-                            hit_v(k) := '1';
-                            first_v  := false;
-                        end if;
-
-                    end loop;
-
                     class_v := RX_UNEXPECTED;
                     if rx_rtr_q = '0' and node_of(rx_id_q) /= node_none_c then
                         if func_code(rx_id_q) = FC_NMT_EC_C then
                             if rx_dlc_q /= ec_dlc_c then
                                 class_v := RX_MALFORMED;
-                            elsif not first_v then
+                            elsif match_any = '1' then
                                 class_v := RX_EC;
                             end if;
                         elsif func_code(rx_id_q) = FC_SYNC_EMCY_C then
@@ -345,7 +448,7 @@ begin
                         end if;
                     end if;
                     rx_class <= class_v;
-                    rx_hit   <= hit_v;
+                    rx_hit   <= match_hit;
                     rx_state <= S_RX_APPLY;
 
                 when S_RX_APPLY =>
@@ -366,7 +469,7 @@ begin
                 -- the start frame is on tx_req_o (or was already taken): report
                 when S_RX_REPLY =>
 
-                    if tx_req = '1' or (pend_start_q and rx_hit) = (rx_hit'range => '0') then
+                    if tx_vld = '1' or (pend_start_q and rx_hit) = (rx_hit'range => '0') then
                         rx_done_o  <= '1';
                         rx_reply_o <= '1';
                         rx_state   <= S_RX_IDLE;
@@ -422,50 +525,375 @@ begin
     end process apply_flags_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Slots: per slot (static index k), in this order: host clear, frame taken by the FSM,
-    -- received frame, ms tick, (re)load of the loss timer, configuration. A frame and a tick in
-    -- the same cycle: the frame wins (the tick is not counted for that slot).
+    -- Slot engine. The timer state of every slot is a word in the slot RAM; one datapath
+    -- (visit_proc) updates one slot per visit: a read of the word in one cycle, the visit and
+    -- the write-back in the next. Visits:
+    --   * frame: the error-control frame's slot, read in S_RX_MATCH, applied in S_RX_APPLY
+    --     (2 edges after the edge sampling rx_valid_i, as before);
+    --   * sweep: otherwise round robin over the slots, one visit every 2 cycles (a read is only
+    --     started in S_RX_IDLE without rx_valid_i, so a sweep write never meets a frame read).
+    -- A tick's visible effects (loss: ev_lost_o, st_lost_o, st_alive_o, reset-on-loss; RTR
+    -- request) come at the tick's edge from the due bits the slot's last visit computed; its
+    -- counting (timer and guard period) is applied to the slot word at the slot's next visit
+    -- (tick_pend_q), at most 2 * MAX_NODES + 3 cycles per frame in between later. A frame applied
+    -- at the tick's edge wins over the loss (as before: the tick is not counted for the timer).
+    -- ---------------------------------------------------------------------------------------------
+    one       <= '1';
+    ram_raddr <= match_idx when rx_state = S_RX_MATCH else
+                 sw_slot;
+    rd_1h     <= match_hit when rx_state = S_RX_MATCH else
+                 sw_1h;
+    visit     <= sw_phase or rx_apply;
+
+    slot_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => MAX_NODES,
+            WIDTH => slot_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => visit,
+            waddr_i => eng_slot,
+            wdata_i => vis_word,
+            re_i    => one,
+            raddr_i => ram_raddr,
+            rdata_o => ram_rdata
+        );
+
+    eng_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            sw_phase <= '0';
+            sw_slot  <= 0;
+            sw_1h    <= (0 => '1', others => '0');
+            eng_slot <= 0;
+        elsif rising_edge(clk_i) then
+            if sw_phase = '1' then
+                sw_phase <= '0';
+                sw_slot  <= next_slot(sw_slot);
+
+                for k in 0 to MAX_NODES - 1 loop
+
+                    sw_1h((k + 1) mod MAX_NODES) <= sw_1h(k);
+
+                end loop;
+
+            elsif rx_state = S_RX_IDLE and rx_valid_i = '0' then
+                sw_phase <= '1';
+                eng_slot <= sw_slot;
+            end if;
+            if rx_state = S_RX_MATCH then
+                eng_slot <= match_idx;
+            end if;
+        end if;
+
+    end process eng_proc;
+
+    -- configuration of the slot read in this cycle, registered with the read for its visit
+    -- (an AND-OR with the one-hot slot: no index decoding on the matcher's path)
+    cfg_mux_proc : process (cfg_life_i, cfg_mode_i, cfg_node_i, cfg_time_i, rd_1h, valid_q) is
+
+        variable node_v : node_id_t;
+        variable mode_v : std_logic_vector(1 downto 0);
+        variable time_v : std_logic_vector(15 downto 0);
+        variable life_v : std_logic_vector(7 downto 0);
+
+    begin
+
+        node_v := (others => '0');
+        mode_v := (others => '0');
+        time_v := (others => '0');
+        life_v := (others => '0');
+
+        for k in 0 to MAX_NODES - 1 loop
+
+            if rd_1h(k) = '1' then
+                node_v := node_v or cfg_node_i(7 * k + 6 downto 7 * k);
+                mode_v := mode_v or cfg_mode_i(2 * k + 1 downto 2 * k);
+                time_v := time_v or cfg_time_i(16 * k + 15 downto 16 * k);
+                life_v := life_v or cfg_life_i(8 * k + 7 downto 8 * k);
+            end if;
+
+        end loop;
+
+        m_node  <= node_v;
+        m_mode  <= mode_v;
+        m_time  <= unsigned(time_v);
+        m_life  <= unsigned(life_v);
+        m_valid <= or_reduce(rd_1h and valid_q);
+
+    end process cfg_mux_proc;
+
+    -- (datapath registers: valid only in the visit cycle, no reset needed)
+    cfg_reg_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            v_node     <= m_node;
+            v_mode     <= m_mode;
+            v_time     <= m_time;
+            v_life     <= m_life;
+            v_hb       <= m_node /= node_none_c and m_mode = mode_heartbeat_c and m_time /= 0;
+            v_guard    <= m_node /= node_none_c and m_mode = mode_guarding_c and m_time /= 0;
+            v_sup      <= m_node /= node_none_c and m_time /= 0
+                          and (m_mode = mode_heartbeat_c
+                                 or (m_mode = mode_guarding_c and m_life /= 0));
+            v_valid    <= m_valid;
+            v_time_le1 <= m_time <= 1;
+        end if;
+
+    end process cfg_reg_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- The shared slot datapath: in this order, frame taken by the FSM, received frame, tick(s)
+    -- not yet applied, (re)load of the loss timer, configuration.
     -- Loss timer: remaining ms r = sub (heartbeat, fac = 0) or r = (fac - 1) * G + sub
     -- (guarding, fac = life time factor at a reload, sub wraps from 1 to G while fac > 1).
     -- A tick with r = 0 is the loss, so a reload with T (or G x factor) expires at the
     -- (T+1)-th tick after it.
     -- ---------------------------------------------------------------------------------------------
-    slot_proc : process (clk_i, rst_n_i) is
+    visit_proc : process (eng_slot, ram_rdata, rtr_out_q, rx_apply, rx_state_byte, rx_toggle,
+                          tick_ms_i, tick_pend_q, tx_ack_i, tx_kind, tx_sel, tx_vld, v_guard,
+                          v_hb, v_life, v_mode, v_node, v_sup, v_time, v_time_le1, v_valid) is
 
-        variable node_v   : node_id_t;
-        variable mode_v   : std_logic_vector(1 downto 0);
-        variable time_v   : unsigned(15 downto 0);
-        variable life_v   : unsigned(7 downto 0);
-        variable hb_v     : boolean; -- heartbeat consumer with T /= 0
-        variable guard_v  : boolean; -- node guarding with G /= 0
-        variable sup_v    : boolean; -- a loss can be detected
-        variable heard_v  : boolean; -- the node was heard in this cycle
-        variable reload_v : boolean; -- (re)start the loss timer
+        variable word_v   : std_logic_vector(slot_w_c - 1 downto 0);
+        variable hb_v     : boolean;   -- heartbeat consumer with T /= 0
+        variable guard_v  : boolean;   -- node guarding with G /= 0
+        variable sup_v    : boolean;   -- a loss can be detected
+        variable heard_v  : boolean;   -- the node was heard in this visit
+        variable reload_v : boolean;   -- (re)start the loss timer
+        variable tick_v   : boolean;   -- a tick to count
         variable sub_v    : unsigned(15 downto 0);
         variable fac_v    : unsigned(7 downto 0);
         variable gcnt_v   : unsigned(15 downto 0);
         variable armed_v  : std_logic;
         variable run_v    : std_logic;
         variable exp_v    : std_logic;
+        variable out_q_v  : std_logic; -- RTR outstanding before this cycle
         variable out_v    : std_logic;
+        variable chg_v    : boolean;   -- node-ID or mode changed since the last visit
+        variable cnt_v    : boolean;   -- the tick is counted by the loss timer
 
     begin
 
+        -- a slot not visited since reset: not armed, not running, toggle 0 (the counters are
+        -- only read while armed / running, so they need no masking)
+        word_v            := ram_rdata;
+        word_v(w_armed_c) := ram_rdata(w_armed_c) and v_valid;
+        word_v(w_run_c)   := ram_rdata(w_run_c) and v_valid;
+        word_v(w_exp_c)   := ram_rdata(w_exp_c) and v_valid;
+
+        sub_v   := unsigned(word_v(w_sub_c + 15 downto w_sub_c));
+        fac_v   := unsigned(word_v(w_fac_c + 7 downto w_fac_c));
+        gcnt_v  := unsigned(word_v(w_gcnt_c + 15 downto w_gcnt_c));
+        armed_v := word_v(w_armed_c);
+        run_v   := word_v(w_run_c);
+        exp_v   := word_v(w_exp_c);
+        out_q_v := rtr_out_q(eng_slot);
+        out_v   := out_q_v;
+
+        hb_v     := v_hb;
+        guard_v  := v_guard;
+        sup_v    := v_sup;
+        tick_v   := tick_ms_i = '1' or tick_pend_q(eng_slot) = '1';
+        heard_v  := false;
+        reload_v := false;
+
+        vis_bootup  <= '0';
+        vis_toggle  <= '0';
+        vis_rtr_now <= '0';
+
+        -- the FSM took this slot's RTR
+        if tx_vld = '1' and tx_ack_i = '1' and tx_sel(eng_slot) = '1' and tx_kind = TX_RTR then
+            out_v := '1';
+        end if;
+
+        -- error-control frame from this slot's node
+        if rx_apply = '1' then
+            if rx_state_byte = NMT_ST_BOOTUP_C then
+                -- boot-up: record it, restart the toggle rule; heartbeat monitoring restarts
+                -- with the first heartbeat, guarding keeps polling. An RTR already taken for
+                -- transmission stays outstanding: the booted node answers it (toggle 0), and
+                -- ignoring that reply would leave the expectation one step behind
+                heard_v    := true;
+                vis_bootup <= '1';
+                exp_v      := '0';
+                armed_v    := '0';
+                reload_v   := guard_v and run_v = '1';
+            elsif v_mode = mode_guarding_c then
+                -- guarding reply: only as the answer to an RTR that went out
+                if out_q_v = '1' then
+                    heard_v  := true;
+                    out_v    := '0';
+                    reload_v := run_v = '1';
+                    if rx_toggle /= exp_v then
+                        vis_toggle <= '1';
+                    end if;
+                    -- alternate; after an error resynchronise to the received bit
+                    exp_v := not rx_toggle;
+                end if;
+            else
+                -- heartbeat (or a slot without supervision: state only)
+                heard_v  := true;
+                reload_v := hb_v;
+            end if;
+        end if;
+
+        -- tick: loss timer (the loss itself was reported at the tick from the due bit), then
+        -- the guard period (RTR every G ticks from the first tick after guarding is enabled)
+        if tick_v then
+            if armed_v = '1' and not heard_v then
+                if sub_v = 0 then
+                    armed_v := '0';
+                elsif sub_v = 1 and fac_v > 1 then
+                    sub_v := v_time;
+                    fac_v := fac_v - 1;
+                else
+                    sub_v := sub_v - 1;
+                end if;
+            end if;
+            if guard_v then
+                if run_v = '0' or gcnt_v <= 1 then
+                    gcnt_v := v_time;
+                else
+                    gcnt_v := gcnt_v - 1;
+                end if;
+                -- first request: toggle expected 0, life timer started (no RTR outstanding: set
+                -- at the tick's edge by slot_proc from due_first_q, here for a tick at this edge;
+                -- a slot not visited since reset had no due bits: its first RTR is requested now)
+                if run_v = '0' then
+                    run_v    := '1';
+                    exp_v    := '0';
+                    reload_v := true;
+                    if tick_ms_i = '1' or v_valid = '0' then
+                        out_v := '0';
+                    end if;
+                    if v_valid = '0' then
+                        vis_rtr_now <= '1';
+                    end if;
+                end if;
+            end if;
+        end if;
+
+        if reload_v then
+            armed_v := '1';
+            sub_v   := v_time;
+            if guard_v then
+                fac_v := v_life;
+            else
+                fac_v := (others => '0');
+            end if;
+        end if;
+
+        -- supervision switched off, or the slot re-configured: restart it
+        if not guard_v then
+            run_v  := '0';
+            gcnt_v := (others => '0');
+        end if;
+
+        if not sup_v then
+            armed_v := '0';
+        end if;
+
+        -- (a slot never visited since reset starts from the all-zero word: nothing to restart)
+        vis_changed <= '0';
+
+        if v_valid = '1'
+           and (v_node /= word_v(w_node_c + 6 downto w_node_c)
+                  or v_mode /= word_v(w_mode_c + 1 downto w_mode_c)) then
+            vis_changed <= '1';
+            armed_v     := '0';
+            run_v       := '0';
+            exp_v       := '0';
+            out_v       := '0';
+        end if;
+
+        if heard_v then
+            vis_heard <= '1';
+        else
+            vis_heard <= '0';
+        end if;
+
+        vis_out <= out_v;
+        -- due bits of the next tick: armed and sub = 0, guarding and (run = 0 or gcnt <= 1), as
+        -- functions of the word read (short paths): a reload (sub = T or G, never 0) or a
+        -- restart clears the loss; a counted tick leaves sub = 0 only from sub = 1 with fac <= 1
+        -- and gcnt <= 1 only from gcnt = 2 or a reload with G <= 1
+        chg_v        := v_valid = '1'
+                        and (v_node /= word_v(w_node_c + 6 downto w_node_c)
+                               or v_mode /= word_v(w_mode_c + 1 downto w_mode_c));
+        cnt_v        := tick_v and word_v(w_armed_c) = '1' and not heard_v;
+        vis_due_loss <= '0';
+
+        if sup_v and not reload_v and not chg_v and not (rx_apply = '1'
+                                                         and rx_state_byte = NMT_ST_BOOTUP_C) then
+            if cnt_v then
+                if unsigned(word_v(w_sub_c + 15 downto w_sub_c)) = 1
+                   and unsigned(word_v(w_fac_c + 7 downto w_fac_c)) <= 1 then
+                    vis_due_loss <= '1';
+                end if;
+            elsif word_v(w_armed_c) = '1' and unsigned(word_v(w_sub_c + 15 downto w_sub_c)) = 0 then
+                vis_due_loss <= '1';
+            end if;
+        end if;
+
+        vis_due_rtr   <= '0';
+        vis_due_first <= '0';
+
+        if guard_v then
+            if chg_v then
+                vis_due_rtr   <= '1';
+                vis_due_first <= '1';
+            elsif tick_v then
+                if word_v(w_run_c) = '0'
+                   or unsigned(word_v(w_gcnt_c + 15 downto w_gcnt_c)) <= 1 then
+                    if v_time_le1 then
+                        vis_due_rtr <= '1';
+                    end if;
+                elsif unsigned(word_v(w_gcnt_c + 15 downto w_gcnt_c)) = 2 then
+                    vis_due_rtr <= '1';
+                end if;
+            elsif word_v(w_run_c) = '0' then
+                vis_due_rtr   <= '1';
+                vis_due_first <= '1';
+            elsif unsigned(word_v(w_gcnt_c + 15 downto w_gcnt_c)) <= 1 then
+                vis_due_rtr <= '1';
+            end if;
+        end if;
+
+        vis_word                                <= (others => '0');
+        vis_word(w_sub_c + 15 downto w_sub_c)   <= std_logic_vector(sub_v);
+        vis_word(w_fac_c + 7 downto w_fac_c)    <= std_logic_vector(fac_v);
+        vis_word(w_gcnt_c + 15 downto w_gcnt_c) <= std_logic_vector(gcnt_v);
+        vis_word(w_armed_c)                     <= armed_v;
+        vis_word(w_run_c)                       <= run_v;
+        vis_word(w_exp_c)                       <= exp_v;
+        vis_word(w_node_c + 6 downto w_node_c)  <= v_node;
+        vis_word(w_mode_c + 1 downto w_mode_c)  <= v_mode;
+
+    end process visit_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Per-slot flags and status (static index k), in this order: host clear, frame taken by the
+    -- FSM, tick (loss and RTR from the due bits; a frame of the slot applied at this edge wins
+    -- over the loss), visit of the slot (frame results, due bits, configuration restart).
+    -- ---------------------------------------------------------------------------------------------
+    slot_proc : process (clk_i, rst_n_i) is
+    begin
+
         if rst_n_i = '0' then
-            cfg_node_q   <= (others => '0');
-            cfg_mode_q   <= (others => '0');
             nmt_q        <= (others => (others => '0'));
             last_q       <= (others => (others => '0'));
             alive_q      <= (others => '0');
             lost_q       <= (others => '0');
             toggle_q     <= (others => '0');
             bootup_q     <= (others => '0');
-            armed_q      <= (others => '0');
-            sub_q        <= (others => (others => '0'));
-            fac_q        <= (others => (others => '0'));
-            grd_run_q    <= (others => '0');
-            gcnt_q       <= (others => (others => '0'));
-            exp_tog_q    <= (others => '0');
+            valid_q      <= (others => '0');
+            tick_pend_q  <= (others => '0');
+            due_loss_q   <= (others => '0');
+            due_rtr_q    <= (others => '0');
+            due_first_q  <= (others => '0');
             rtr_out_q    <= (others => '0');
             pend_rtr_q   <= (others => '0');
             pend_start_q <= (others => '0');
@@ -477,27 +905,8 @@ begin
             ev_lost_o   <= (others => '0');
             ev_toggle_o <= (others => '0');
             ev_bootup_o <= (others => '0');
-            cfg_node_q  <= cfg_node_i;
-            cfg_mode_q  <= cfg_mode_i;
 
             for k in 0 to MAX_NODES - 1 loop
-
-                node_v   := cfg_node_i(7 * k + 6 downto 7 * k);
-                mode_v   := cfg_mode_i(2 * k + 1 downto 2 * k);
-                time_v   := unsigned(cfg_time_i(16 * k + 15 downto 16 * k));
-                life_v   := unsigned(cfg_life_i(8 * k + 7 downto 8 * k));
-                hb_v     := node_v /= node_none_c and mode_v = mode_heartbeat_c and time_v /= 0;
-                guard_v  := node_v /= node_none_c and mode_v = mode_guarding_c and time_v /= 0;
-                sup_v    := hb_v or (guard_v and life_v /= 0);
-                heard_v  := false;
-                reload_v := false;
-                sub_v    := sub_q(k);
-                fac_v    := fac_q(k);
-                gcnt_v   := gcnt_q(k);
-                armed_v  := armed_q(k);
-                run_v    := grd_run_q(k);
-                exp_v    := exp_tog_q(k);
-                out_v    := rtr_out_q(k);
 
                 -- host clears the sticky bits (an event in the same cycle sets them again)
                 if st_clear_i(k) = '1' then
@@ -507,7 +916,7 @@ begin
                 end if;
 
                 -- the FSM took this slot's frame
-                if tx_req = '1' and tx_ack_i = '1' and tx_slot = k then
+                if tx_vld = '1' and tx_ack_i = '1' and tx_sel(k) = '1' then
 
                     case tx_kind is
 
@@ -522,134 +931,69 @@ begin
                         when TX_RTR =>
 
                             pend_rtr_q(k) <= '0';
-                            out_v         := '1';
+                            rtr_out_q(k)  <= '1';
 
                     end case;
 
                 end if;
 
-                -- error-control frame from this slot's node
-                if rx_apply = '1' and rx_hit(k) = '1' then
-                    if rx_state_byte = NMT_ST_BOOTUP_C then
-                        -- boot-up: record it, restart the toggle rule; heartbeat monitoring
-                        -- restarts with the first heartbeat, guarding keeps polling
-                        heard_v        := true;
-                        bootup_q(k)    <= '1';
-                        ev_bootup_o(k) <= '1';
-                        nmt_q(k)       <= rx_state_byte;
-                        last_q(k)      <= rx_time_q;
-                        alive_q(k)     <= '1';
-                        exp_v          := '0';
-                        -- an RTR already taken for transmission stays outstanding: the booted
-                        -- node answers it (toggle 0), and ignoring that reply would leave the
-                        -- expectation one step behind
-                        armed_v         := '0';
-                        reload_v        := guard_v and run_v = '1';
+                -- ms tick
+                if tick_ms_i = '1' then
+                    tick_pend_q(k) <= '1';
+                    if due_loss_q(k) = '1'
+                       and not (rx_apply = '1' and eng_slot = k and vis_heard = '1') then
+                        alive_q(k)   <= '0';
+                        lost_q(k)    <= '1';
+                        ev_lost_o(k) <= '1';
+                        if cfg_reset_on_loss_i(k) = '1' then
+                            pend_reset_q(k) <= '1';
+                        end if;
+                    end if;
+                    if due_rtr_q(k) = '1' then
+                        pend_rtr_q(k) <= '1';
+                    end if;
+                    -- first request of the slot: no RTR outstanding (a frame taken in this
+                    -- cycle included)
+                    if due_first_q(k) = '1' then
+                        rtr_out_q(k) <= '0';
+                    end if;
+                end if;
+
+                -- visit of this slot
+                if visit = '1' and eng_slot = k then
+                    valid_q(k)     <= '1';
+                    tick_pend_q(k) <= '0';
+                    due_loss_q(k)  <= vis_due_loss;
+                    due_rtr_q(k)   <= vis_due_rtr;
+                    due_first_q(k) <= vis_due_first;
+                    rtr_out_q(k)   <= vis_out;
+                    if vis_heard = '1' then
+                        nmt_q(k)   <= rx_state_byte;
+                        last_q(k)  <= rx_time_q;
+                        alive_q(k) <= '1';
+                    end if;
+                    if vis_bootup = '1' then
+                        bootup_q(k)     <= '1';
+                        ev_bootup_o(k)  <= '1';
                         pend_reset_q(k) <= '0';
                         if cfg_autostart_i(k) = '1' then
                             pend_start_q(k) <= '1';
                         end if;
-                    elsif mode_v = mode_guarding_c then
-                        -- guarding reply: only as the answer to an RTR that went out
-                        if rtr_out_q(k) = '1' then
-                            heard_v    := true;
-                            out_v      := '0';
-                            nmt_q(k)   <= rx_state_byte;
-                            last_q(k)  <= rx_time_q;
-                            alive_q(k) <= '1';
-                            reload_v   := run_v = '1';
-                            if rx_toggle /= exp_v then
-                                toggle_q(k)    <= '1';
-                                ev_toggle_o(k) <= '1';
-                            end if;
-                            -- alternate; after an error resynchronise to the received bit
-                            exp_v := not rx_toggle;
-                        end if;
-                    else
-                        -- heartbeat (or a slot without supervision: state only)
-                        heard_v    := true;
-                        nmt_q(k)   <= rx_state_byte;
-                        last_q(k)  <= rx_time_q;
-                        alive_q(k) <= '1';
-                        reload_v   := hb_v;
+                    end if;
+                    if vis_toggle = '1' then
+                        toggle_q(k)    <= '1';
+                        ev_toggle_o(k) <= '1';
+                    end if;
+                    if vis_rtr_now = '1' then
+                        pend_rtr_q(k) <= '1';
+                    end if;
+                    if vis_changed = '1' then
+                        alive_q(k)      <= '0';
+                        pend_rtr_q(k)   <= '0';
+                        pend_start_q(k) <= '0';
+                        pend_reset_q(k) <= '0';
                     end if;
                 end if;
-
-                -- ms tick: loss timer, then the guard period (RTR every G ticks from the first
-                -- tick after guarding is enabled)
-                if tick_ms_i = '1' then
-                    if armed_v = '1' and not heard_v then
-                        if sub_v = 0 then
-                            armed_v      := '0';
-                            alive_q(k)   <= '0';
-                            lost_q(k)    <= '1';
-                            ev_lost_o(k) <= '1';
-                            if cfg_reset_on_loss_i(k) = '1' then
-                                pend_reset_q(k) <= '1';
-                            end if;
-                        elsif sub_v = 1 and fac_v > 1 then
-                            sub_v := time_v;
-                            fac_v := fac_v - 1;
-                        else
-                            sub_v := sub_v - 1;
-                        end if;
-                    end if;
-                    if guard_v then
-                        if run_v = '0' or gcnt_v <= 1 then
-                            gcnt_v        := time_v;
-                            pend_rtr_q(k) <= '1';
-                        else
-                            gcnt_v := gcnt_v - 1;
-                        end if;
-                        -- first request: toggle expected 0, life timer started
-                        if run_v = '0' then
-                            run_v    := '1';
-                            exp_v    := '0';
-                            out_v    := '0';
-                            reload_v := true;
-                        end if;
-                    end if;
-                end if;
-
-                if reload_v then
-                    armed_v := '1';
-                    sub_v   := time_v;
-                    if guard_v then
-                        fac_v := life_v;
-                    else
-                        fac_v := (others => '0');
-                    end if;
-                end if;
-
-                -- supervision switched off, or the slot re-configured: restart it
-                -- (gcnt is cleared too: besides being tidy, without it GHDL 2.0 --synth crashes
-                -- with an internal error for MAX_NODES = 1)
-                if not guard_v then
-                    run_v  := '0';
-                    gcnt_v := (others => '0');
-                end if;
-                if not sup_v then
-                    armed_v := '0';
-                end if;
-                if node_v /= cfg_node_q(7 * k + 6 downto 7 * k)
-                   or mode_v /= cfg_mode_q(2 * k + 1 downto 2 * k) then
-                    armed_v         := '0';
-                    run_v           := '0';
-                    exp_v           := '0';
-                    out_v           := '0';
-                    alive_q(k)      <= '0';
-                    pend_rtr_q(k)   <= '0';
-                    pend_start_q(k) <= '0';
-                    pend_reset_q(k) <= '0';
-                end if;
-
-                sub_q(k)     <= sub_v;
-                fac_q(k)     <= fac_v;
-                gcnt_q(k)    <= gcnt_v;
-                armed_q(k)   <= armed_v;
-                grd_run_q(k) <= run_v;
-                exp_tog_q(k) <= exp_v;
-                rtr_out_q(k) <= out_v;
 
             end loop;
 
@@ -658,106 +1002,122 @@ begin
     end process slot_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Transmit arbiter: the first slot with a pending request at or after rr_ptr (round robin);
-    -- within a slot reset-node before start before RTR
+    -- Transmit arbiter: the first slot with a pending request at or after the round-robin
+    -- pointer (rr_mask: the slots at or after it), else the first one; within a slot reset-node
+    -- before start before RTR. One-hot selection (lowest set bit by prefix ORs): no priority
+    -- chain over the slots.
     -- ---------------------------------------------------------------------------------------------
-    pick_proc : process (pend_reset_q, pend_rtr_q, pend_start_q, rr_ptr) is
+    pick_proc : process (pend_reset_q, pend_rtr_q, pend_start_q, rr_mask) is
 
-        variable any_v      : std_logic_vector(MAX_NODES - 1 downto 0);
-        variable low_v      : slot_t; -- lowest pending slot
-        variable low_rr_v   : slot_t; -- lowest pending slot at or above rr_ptr
-        variable found_rr_v : boolean;
-        variable slot_v     : slot_t;
+        variable any_v : std_logic_vector(MAX_NODES - 1 downto 0); -- slots with a request
+        variable hi_v  : std_logic_vector(MAX_NODES - 1 downto 0); -- ... at or after the pointer
+        variable sh_v  : std_logic_vector(MAX_NODES - 1 downto 0); -- first of hi_v, one-hot
+        variable sl_v  : std_logic_vector(MAX_NODES - 1 downto 0); -- first of any_v, one-hot
+        variable sel_v : std_logic_vector(MAX_NODES - 1 downto 0); -- chosen slot, one-hot
 
     begin
 
-        any_v      := pend_rtr_q or pend_start_q or pend_reset_q;
-        low_v      := 0;
-        low_rr_v   := 0;
-        found_rr_v := false;
+        any_v := pend_rtr_q or pend_start_q or pend_reset_q;
+        hi_v  := any_v and rr_mask;
+        sh_v  := low_bit(hi_v);
+        sl_v  := low_bit(any_v);
 
-        for k in MAX_NODES - 1 downto 0 loop
-
-            if any_v(k) = '1' then
-                low_v := k;
-                if k >= rr_ptr then
-                    low_rr_v   := k;
-                    found_rr_v := true;
-                end if;
-            end if;
-
-        end loop;
-
-        if found_rr_v then
-            slot_v := low_rr_v;
+        if or_reduce(hi_v) = '1' then
+            sel_v := sh_v;
         else
-            slot_v := low_v;
+            sel_v := sl_v;
         end if;
 
-        pick_slot  <= slot_v;
-        pick_valid <= '0';
-        pick_kind  <= TX_RTR;
-
-        for k in 0 to MAX_NODES - 1 loop
-
-            if k = slot_v then
-                pick_valid <= any_v(k);
-                if pend_reset_q(k) = '1' then
-                    pick_kind <= TX_RESET;
-                elsif pend_start_q(k) = '1' then
-                    pick_kind <= TX_START;
-                end if;
-            end if;
-
-        end loop;
+        pick_sel   <= sel_v;
+        pick_valid <= or_reduce(any_v);
 
     end process pick_proc;
 
     tx_arb_proc : process (clk_i, rst_n_i) is
+
+        variable seen_v : std_logic; -- a slot below k was served (or the last one)
+
     begin
 
         if rst_n_i = '0' then
             tx_req  <= '0';
-            tx_slot <= 0;
-            tx_kind <= TX_RTR;
-            rr_ptr  <= 0;
+            tx_sel  <= (others => '0');
+            rr_mask <= (others => '1');
         elsif rising_edge(clk_i) then
             if tx_req = '1' then
-                if tx_ack_i = '1' then
+                if tx_vld = '1' and tx_ack_i = '1' then
                     tx_req <= '0';
-                    rr_ptr <= next_slot(tx_slot);
+                    -- the slots after the one served (all of them after the last slot)
+                    seen_v := tx_sel(MAX_NODES - 1);
+
+                    for k in 0 to MAX_NODES - 1 loop
+
+                        rr_mask(k) <= seen_v;
+                        seen_v     := seen_v or tx_sel(k);
+
+                    end loop;
+
                 end if;
             elsif pick_valid = '1' then
-                tx_req  <= '1';
-                tx_slot <= pick_slot;
-                tx_kind <= pick_kind;
+                tx_req <= '1';
+                tx_sel <= pick_sel;
             end if;
         end if;
 
     end process tx_arb_proc;
 
-    -- frame of the request being presented (datapath, qualified by tx_req)
-    tx_frame_proc : process (clk_i) is
+    -- the kind (reset-node before start before RTR) and the frame of the slot the arbiter took,
+    -- registered one cycle after it (the round-robin pick and the frame fields are not one
+    -- path); tx_req_o rises with them
+    tx_frame_proc : process (clk_i, rst_n_i) is
 
         variable node_v : node_id_t;
+        variable kind_v : tx_kind_t;
 
     begin
 
+        if rst_n_i = '0' then
+            tx_vld  <= '0';
+            tx_kind <= TX_RTR;
+        elsif rising_edge(clk_i) then
+            if tx_req = '0' or tx_ack_i = '1' then
+                tx_vld <= '0';
+            elsif tx_vld = '0' then
+                tx_vld <= '1';
+            end if;
+            if tx_req = '1' and tx_vld = '0' then
+                if or_reduce(tx_sel and pend_reset_q) = '1' then
+                    tx_kind <= TX_RESET;
+                elsif or_reduce(tx_sel and pend_start_q) = '1' then
+                    tx_kind <= TX_START;
+                else
+                    tx_kind <= TX_RTR;
+                end if;
+            end if;
+        end if;
+
         if rising_edge(clk_i) then
-            if tx_req = '0' and pick_valid = '1' then
+            if tx_req = '1' and tx_vld = '0' then
                 node_v := node_none_c;
+                if or_reduce(tx_sel and pend_reset_q) = '1' then
+                    kind_v := TX_RESET;
+                elsif or_reduce(tx_sel and pend_start_q) = '1' then
+                    kind_v := TX_START;
+                else
+                    kind_v := TX_RTR;
+                end if;
 
                 for k in 0 to MAX_NODES - 1 loop
 
-                    if k = pick_slot then
-                        node_v := cfg_node_i(7 * k + 6 downto 7 * k);
+                    if tx_sel(k) = '1' then
+                        node_v := node_v or cfg_node_i(7 * k + 6 downto 7 * k);
                     end if;
 
                 end loop;
 
                 tx_data_o <= (others => '0');
 
-                case pick_kind is
+                case kind_v is
 
                     when TX_RTR =>
 
@@ -788,73 +1148,61 @@ begin
 
     end process tx_frame_proc;
 
-    tx_req_o <= tx_req;
+    tx_req_o <= tx_vld;
 
     -- ---------------------------------------------------------------------------------------------
-    -- EMCY FIFO. The RAM is read every cycle at the address of the next head, so emcy_q holds
-    -- the head one cycle after it was written; an entry is counted for the host (emcy_count)
-    -- one cycle after its write, when emcy_q can show it. A push into a full FIFO is dropped
-    -- and sets emcy_lost (a pop in the same cycle makes room).
+    -- EMCY FIFO (canopen_fifo: first-word fall-through on block RAM). An EMCY (the RX_EMCY class
+    -- of rx_seq_proc, here from the frame inputs) is pushed at the edge that samples rx_valid_i;
+    -- it is counted for the host (emcy_count_o) one cycle after its write, when the head can
+    -- show it; ev_emcy_o comes with that count. A push into a full FIFO is refused (ovf) and sets
+    -- emcy_lost (a pop in the same cycle makes room).
     -- ---------------------------------------------------------------------------------------------
-    emcy_pop  <= '1' when emcy_pop_i = '1' and emcy_count /= 0 else '0';
-    emcy_push <= '1' when rx_state = S_RX_APPLY and rx_class = RX_EMCY
-                          and (emcy_fill < EMCY_DEPTH or emcy_pop = '1') else
+    emcy_push <= '1' when rx_state = S_RX_IDLE and rx_valid_i = '1' and rx_rtr_i = '0'
+                          and func_code(rx_id_i) = FC_SYNC_EMCY_C
+                          and node_of(rx_id_i) /= node_none_c and rx_dlc_i = emcy_dlc_c else
                  '0';
+    emcy_din  <= node_of(rx_id_i) & rx_data_i & time_ms_i;
 
-    -- entries stored, including the one written in the previous cycle
-    emcy_fill <= emcy_count + 1 when emcy_push_d = '1' else
-                 emcy_count;
-
-    emcy_rd_nxt <= next_ptr(emcy_rd) when emcy_pop = '1' else
-                   emcy_rd;
+    emcy_fifo_inst : entity work.canopen_fifo
+        generic map (
+            WIDTH => emcy_w_c,
+            DEPTH => EMCY_DEPTH
+        )
+        port map (
+            clk_i   => clk_i,
+            rst_n_i => rst_n_i,
+            push_i  => emcy_push,
+            data_i  => emcy_din,
+            full_o  => open,
+            ovf_o   => emcy_ovf,
+            pop_i   => emcy_pop_i,
+            empty_o => open,
+            data_o  => emcy_q,
+            count_o => emcy_count
+        );
 
     emcy_ctrl_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
-            emcy_wr     <= 0;
-            emcy_rd     <= 0;
-            emcy_count  <= 0;
             emcy_push_d <= '0';
             emcy_lost   <= '0';
             ev_emcy_o   <= '0';
         elsif rising_edge(clk_i) then
-            if emcy_push = '1' then
-                emcy_wr <= next_ptr(emcy_wr);
-            end if;
-            emcy_rd     <= emcy_rd_nxt;
-            emcy_push_d <= emcy_push;
+            emcy_push_d <= emcy_push and not emcy_ovf;
             -- the event coincides with the entry becoming visible in emcy_count
             ev_emcy_o <= emcy_push_d;
-            if emcy_push_d = '1' and emcy_pop = '0' then
-                emcy_count <= emcy_count + 1;
-            elsif emcy_push_d = '0' and emcy_pop = '1' then
-                emcy_count <= emcy_count - 1;
-            end if;
             if emcy_clear_i = '1' then
                 emcy_lost <= '0';
             end if;
-            if rx_state = S_RX_APPLY and rx_class = RX_EMCY and emcy_push = '0' then
+            if emcy_ovf = '1' then
                 emcy_lost <= '1';
             end if;
         end if;
 
     end process emcy_ctrl_proc;
 
-    -- simple dual-port RAM, synchronous read, no reset (inferred as block RAM)
-    emcy_ram_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if emcy_push = '1' then
-                emcy_mem(emcy_wr) <= node_of(rx_id_q) & rx_data_q & rx_time_q;
-            end if;
-            emcy_q <= emcy_mem(emcy_rd_nxt);
-        end if;
-
-    end process emcy_ram_proc;
-
-    emcy_count_o <= std_logic_vector(to_unsigned(emcy_count, 7));
+    emcy_count_o <= std_logic_vector(resize(unsigned(emcy_count), 7));
     emcy_lost_o  <= emcy_lost;
     emcy_node_o  <= emcy_q(emcy_w_c - 1 downto emcy_w_c - 7);
     emcy_data_o  <= emcy_q(95 downto 32);

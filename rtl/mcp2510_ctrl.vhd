@@ -417,16 +417,18 @@ architecture rtl of mcp2510_ctrl is
     signal rsp_valid : std_logic;
     signal rsp_rdata : std_logic_vector(111 downto 0);
 
-    -- RX FIFO: id(29) ide rtr dlc(4) data(64) buf = 100 bits
-    constant fifo_w_c : natural := 100;
+    -- RX FIFO: id(29) ide rtr dlc(4) data(64) buf = 100 bits; its RAM declared with at least
+    -- 16 words (free in the 3 M9K that 100 bits need; yosys maps 4 x 100 bits to flip-flops)
+    constant fifo_w_c         : natural := 100;
+    constant fifo_ram_words_c : natural := 16;
 
-    type fifo_mem_t is array (0 to RX_FIFO_DEPTH - 1) of std_logic_vector(fifo_w_c - 1 downto 0);
-
-    signal fifo_mem   : fifo_mem_t;
-    signal fifo_count : natural range 0 to RX_FIFO_DEPTH;
+    -- (canopen_fifo on block RAM): push of a decoded frame, the frame, no room for another one,
+    -- no frame visible, the head
     signal fifo_push  : std_logic;
     signal fifo_din   : std_logic_vector(fifo_w_c - 1 downto 0);
-    signal fifo_pop   : std_logic;
+    signal fifo_full  : std_logic;
+    signal fifo_empty : std_logic;
+    signal fifo_q     : std_logic_vector(fifo_w_c - 1 downto 0);
 
     -- TXnRTS pulse generators
 
@@ -960,10 +962,10 @@ begin
                         reinit_req <= '0';
                         attempt    <= 0;
                         go(S_RESET_CMD);
-                    elsif blank_cnt = 0 and rx0_sync(1) = '0' and fifo_count < RX_FIFO_DEPTH then
+                    elsif blank_cnt = 0 and rx0_sync(1) = '0' and fifo_full = '0' then
                         rx_buf <= 0;
                         go(S_RX_READ);
-                    elsif blank_cnt = 0 and rx1_sync(1) = '0' and fifo_count < RX_FIFO_DEPTH then
+                    elsif blank_cnt = 0 and rx1_sync(1) = '0' and fifo_full = '0' then
                         rx_buf <= 1;
                         go(S_RX_READ);
                     elsif blank_cnt = 0 and int_sync(1) = '0' then
@@ -1480,56 +1482,37 @@ begin
     end process err_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- RX FIFO (first-word fall-through)
+    -- RX FIFO (first-word fall-through, block RAM). A frame is pushed 2 cycles before rx_valid_o
+    -- shows it; S_IDLE reads an RX buffer only while fifo_full = '0' (the count includes a push
+    -- of the previous cycle), so a push is never refused and no frame is lost here. rx_ready_i
+    -- while empty is ignored by the FIFO.
     -- ---------------------------------------------------------------------------------------------
-    fifo_pop <= '1' when fifo_count /= 0 and rx_ready_i = '1' else '0';
+    rx_fifo_inst : entity work.canopen_fifo
+        generic map (
+            WIDTH         => fifo_w_c,
+            DEPTH         => RX_FIFO_DEPTH,
+            MIN_RAM_WORDS => fifo_ram_words_c
+        )
+        port map (
+            clk_i   => clk_i,
+            rst_n_i => rst_n_i,
+            push_i  => fifo_push,
+            data_i  => fifo_din,
+            full_o  => fifo_full,
+            ovf_o   => open,
+            pop_i   => rx_ready_i,
+            empty_o => fifo_empty,
+            data_o  => fifo_q,
+            count_o => open
+        );
 
-    -- shift-register FIFO, head at entry 0, static indices only: a few entries are cheap in
-    -- logic elements, and GHDL 2.0's memory extraction crashes on an asynchronously read array
-    fifo_proc : process (clk_i, rst_n_i) is
-
-        variable count_v : natural range 0 to RX_FIFO_DEPTH;
-
-    begin
-
-        if rst_n_i = '0' then
-            fifo_count <= 0;
-        elsif rising_edge(clk_i) then
-            count_v := fifo_count;
-            if fifo_pop = '1' then
-
-                for i in 0 to RX_FIFO_DEPTH - 2 loop
-
-                    fifo_mem(i) <= fifo_mem(i + 1);
-
-                end loop;
-
-                count_v := count_v - 1;
-            end if;
-            if fifo_push = '1' and count_v < RX_FIFO_DEPTH then
-
-                for i in 0 to RX_FIFO_DEPTH - 1 loop
-
-                    if i = count_v then
-                        fifo_mem(i) <= fifo_din;
-                    end if;
-
-                end loop;
-
-                count_v := count_v + 1;
-            end if;
-            fifo_count <= count_v;
-        end if;
-
-    end process fifo_proc;
-
-    rx_valid_o <= '1' when fifo_count /= 0 else '0';
-    rx_id_o    <= fifo_mem(0)(99 downto 71);
-    rx_ide_o   <= fifo_mem(0)(70);
-    rx_rtr_o   <= fifo_mem(0)(69);
-    rx_dlc_o   <= fifo_mem(0)(68 downto 65);
-    rx_data_o  <= fifo_mem(0)(64 downto 1);
-    rx_buf_o   <= fifo_mem(0)(0);
+    rx_valid_o <= not fifo_empty;
+    rx_id_o    <= fifo_q(99 downto 71);
+    rx_ide_o   <= fifo_q(70);
+    rx_rtr_o   <= fifo_q(69);
+    rx_dlc_o   <= fifo_q(68 downto 65);
+    rx_data_o  <= fifo_q(64 downto 1);
+    rx_buf_o   <= fifo_q(0);
 
     int_canintf_o <= intf_q;
     int_eflg_o    <= eflg_q;

@@ -340,7 +340,7 @@ async def run_bootup_autostart(dut):
     slots with autostart answer rx_reply_o (with tx_req_o already up) and the NMT start
     [01h, node] goes on the bus, so those slaves become operational, the slot without autostart
     stays pre-operational; heartbeats then report 05h / 7Fh and the reception time in st_last;
-    st_clear clears the sticky bit; rx_done_o comes 2 cycles after rx_valid_i (4 with a reply).
+    st_clear clears the sticky bit; rx_done_o comes 2 cycles after rx_valid_i (5 with a reply).
     """
     tb = TB(dut)
     for node in NODES:
@@ -373,7 +373,7 @@ async def run_bootup_autostart(dut):
     assert tb.bit("st_bootup_o", tb.slot_of[2]) == 0 and tb.bit("st_bootup_o", tb.slot_of[1])
     assert not any(r.unexpected or r.malformed for r in tb.rx_log)
     tb.check_rx_latency()
-    assert max(r.cycles for r in tb.rx_log) == 4
+    assert max(r.cycles for r in tb.rx_log) == 5
 
 
 @cocotb.test(timeout_time=200, timeout_unit="ms")
