@@ -8,7 +8,6 @@ canopen_pkg.vhd
 canopen_regs_pkg.vhd
 canopen_util_pkg.vhd
 canopen_sdp_ram.vhd
-canopen_sdo_client.vhd
 canopen_sdo_channels.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
