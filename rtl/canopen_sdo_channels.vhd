@@ -382,6 +382,31 @@ architecture rtl of canopen_sdo_channels is
 
     type eng_t is (E_IDLE, E_READ, E_LOAD, E_RUN, E_WAIT, E_WB, E_RXD);
 
+    -- decision on a received frame (rx_dec_proc), applied by the engine in E_RUN
+
+    type rxd_t is record
+        unexp    : std_logic;                       -- not for the transfer
+        abort    : std_logic;                       -- answer with an abort frame (code)
+        code     : std_logic_vector(31 downto 0);   -- abort code / the server's code
+        srv      : std_logic;                       -- server abort: the transfer ends
+        ok_end   : std_logic;                       -- the download ends successfully
+        dl_seg   : std_logic;                       -- next download segment (toggle tgl)
+        ul_seg   : std_logic;                       -- next upload segment request (tgl)
+        tgl      : std_logic;                       -- toggle of the next segment
+        wr       : std_logic;                       -- write wr_n received bytes at wr_a
+        fin      : std_logic;                       -- the upload ends after the write
+        wr_a     : unsigned(addr_w_c - 1 downto 0); -- byte address of the write
+        wr_n     : unsigned(3 downto 0);            -- bytes to write
+        wr_d     : std_logic_vector(55 downto 0);   -- the bytes
+        pos      : unsigned(cnt_w_c - 1 downto 0);  -- position after the write
+        acked_up : std_logic;                       -- download: bytes confirmed = acked
+        acked    : unsigned(cnt_w_c - 1 downto 0);  -- its value
+        init_ul  : std_logic;                       -- segmented upload: known / ind
+        known    : std_logic;                       -- size indicated
+        ind      : unsigned(cnt_w_c - 1 downto 0);  -- indicated size
+        empty    : std_logic;                       -- one more empty segment
+    end record rxd_t;
+
     -- frame building still to do once the buffer read unit has the bytes
 
     type bld_t is (B_NONE, B_INIT, B_SEG);
@@ -468,6 +493,15 @@ architecture rtl of canopen_sdo_channels is
     signal ctx_rdata : std_logic_vector(ctx_w_c - 1 downto 0);
     -- engine write-back this cycle (not stalled by a start)
     signal wb_go : std_logic;
+    -- the next work item (disp_proc)
+    signal disp_go : std_logic;
+    signal disp_ev : ev_t;
+    signal disp_ch : natural range 0 to N_SDO - 1;
+    -- the decision on the received frame (rx_dec_proc)
+    signal rxd : rxd_t;
+    -- strobes of the engine to chan_proc (one cycle late): timer reloaded, request withdrawn
+    signal reload_q : std_logic;
+    signal wd_q     : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- transmit presentation
@@ -732,9 +766,10 @@ begin
 
     end process grant_proc;
 
-    -- a frame is presented when none is and no taken frame waits for the engine; never in the
-    -- cycle in which the engine may withdraw one (E_RUN)
-    grant <= '1' when gr_any = '1' and tx_full = '0' and ack_pend = '0' and eng /= E_RUN else
+    -- a frame is presented when none is and no taken frame waits for the engine; never while the
+    -- engine may be withdrawing one (E_RUN and the cycle after)
+    grant <= '1' when gr_any = '1' and tx_full = '0' and ack_pend = '0' and eng /= E_RUN
+                      and wd_q = '0' else
              '0';
 
     -- ---------------------------------------------------------------------------------------------
@@ -898,92 +933,88 @@ begin
     end generate lane_gen;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Per-channel flags, admission state, transmit presentation, receive capture and the engine
+    -- The engine's next work item: tx ack > received frame > start (lowest channel) > timer
+    -- sweep (lowest channel)
     -- ---------------------------------------------------------------------------------------------
-    main_proc : process (clk_i, rst_n_i) is
+    disp_proc : process (ack_ch, ack_pend, ch_state, eng, rx_ch, rx_pend, todo) is
 
-        variable cmd       : std_logic_vector(7 downto 0);
-        variable mux_ok    : boolean;
-        variable is_wait   : boolean;
-        variable tmo_exp   : boolean;
-        variable cnt       : unsigned(3 downto 0);
-        variable rem_v     : unsigned(cnt_w_c - 1 downto 0);
-        variable total     : unsigned(cnt_w_c downto 0);
-        variable ind_v     : unsigned(31 downto 0);
-        variable last_v    : std_logic;
-        variable tgl_v     : std_logic;
-        variable data_v    : std_logic_vector(55 downto 0);
-        variable do_dl_seg : boolean;
-        variable do_ul_seg : boolean;
-        variable do_abort  : boolean;
-        variable abort_v   : std_logic_vector(31 downto 0);
-        variable do_end    : boolean;
-        variable withdraw  : boolean;
-        variable reload    : boolean;
-        variable end_err   : std_logic;
-        variable end_code  : std_logic_vector(31 downto 0);
-        variable end_sent  : std_logic;
-        variable found     : boolean;
+        variable go_v : std_logic;
+        variable ev_v : ev_t;
+        variable ch_v : natural range 0 to N_SDO - 1;
 
     begin
 
+        go_v := '0';
+        ev_v := EV_TICK;
+        ch_v := 0;
+
+        if eng = E_IDLE then
+            if ack_pend = '1' then
+                go_v := '1';
+                ev_v := EV_ACK;
+                ch_v := ack_ch;
+            elsif rx_pend = '1' then
+                go_v := '1';
+                ev_v := EV_RX;
+                ch_v := rx_ch;
+            else
+
+                for c in N_SDO - 1 downto 0 loop
+
+                    if todo(c) = '1' then
+                        go_v := '1';
+                        ev_v := EV_TICK;
+                        ch_v := c;
+                    end if;
+
+                end loop;
+
+                for c in N_SDO - 1 downto 0 loop
+
+                    if ch_state(c) = S_START then
+                        go_v := '1';
+                        ev_v := EV_START;
+                        ch_v := c;
+                    end if;
+
+                end loop;
+
+            end if;
+        end if;
+
+        disp_go <= go_v;
+        disp_ev <= ev_v;
+        disp_ch <= ch_v;
+
+    end process disp_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Per-channel flip-flops: admission, start, transmit presentation, ms-tick sweep flags, and
+    -- the engine's results (state, frame flag, transfer result at write-back)
+    -- ---------------------------------------------------------------------------------------------
+    chan_proc : process (clk_i, rst_n_i) is
+    begin
+
         if rst_n_i = '0' then
-            ch_state      <= (others => S_IDLE);
-            run_req       <= (others => (others => '0'));
-            run_rsp       <= (others => (others => '0'));
-            txw           <= (others => '0');
-            todo          <= (others => '0');
-            res_err       <= (others => '0');
-            res_code      <= (others => (others => '0'));
-            res_sent      <= (others => '0');
-            res_size      <= (others => (others => '0'));
-            c_done        <= (others => '0');
-            refused       <= (others => '0');
-            own_pend      <= '0';
-            own_wpend     <= '0';
-            eng           <= E_IDLE;
-            ev            <= EV_ACK;
-            ev_ch         <= 0;
-            state         <= S_IDLE;
-            state_ld      <= S_IDLE;
-            done_q        <= '0';
-            error_q       <= '0';
-            abort_sent_q  <= '0';
-            size_q        <= (others => '0');
-            new_frame     <= '0';
-            bld           <= B_NONE;
-            fin_pend      <= '0';
-            rx_item_reply <= '0';
-            rx_item_unexp <= '0';
-            tx_full       <= '0';
-            tx_ch         <= 0;
-            ack_pend      <= '0';
-            ack_ch        <= 0;
-            rx_pend       <= '0';
-            rx_ch         <= 0;
-            rx_done_q     <= '0';
-            rx_reply_q    <= '0';
-            rx_unexp_q    <= '0';
-            nohit_pipe    <= (others => '0');
-            fetch_ph      <= 0;
-            wr_ph         <= 0;
+            ch_state  <= (others => S_IDLE);
+            run_req   <= (others => (others => '0'));
+            run_rsp   <= (others => (others => '0'));
+            txw       <= (others => '0');
+            todo      <= (others => '0');
+            res_err   <= (others => '0');
+            res_code  <= (others => (others => '0'));
+            res_sent  <= (others => '0');
+            res_size  <= (others => (others => '0'));
+            c_done    <= (others => '0');
+            refused   <= (others => '0');
+            own_pend  <= '0';
+            own_wpend <= '0';
+            tx_full   <= '0';
+            tx_ch     <= 0;
+            ack_pend  <= '0';
+            ack_ch    <= 0;
         elsif rising_edge(clk_i) then
-            c_done     <= (others => '0');
-            rx_done_q  <= '0';
-            rx_reply_q <= '0';
-            rx_unexp_q <= '0';
-            do_dl_seg  := false;
-            do_ul_seg  := false;
-            do_abort   := false;
-            abort_v    := (others => '0');
-            do_end     := false;
-            withdraw   := false;
-            reload     := false;
-            end_err    := '0';
-            end_code   := (others => '0');
-            end_sent   := '0';
-            tgl_v      := '0';
-            tmo_exp    := false;
+            c_done <= (others => '0');
 
             -- admission ----------------------------------------------------------------------
             if host_req_i = '1' and host_go = '0' and sel_ok = '1' then
@@ -1073,6 +1104,317 @@ begin
                 tx_ch   <= gr_ch;
             end if;
 
+            -- the engine took an item
+            if disp_go = '1' and disp_ev = EV_ACK then
+                ack_pend <= '0';
+            end if;
+
+            if disp_go = '1' and disp_ev = EV_TICK then
+                todo(disp_ch) <= '0';
+            end if;
+
+            -- the engine withdrew the channel's waiting request (in the cycle before)
+            if wd_q = '1' then
+                txw(ev_ch) <= '0';
+
+                if tx_full = '1' and tx_ch = ev_ch then
+                    tx_full <= '0';
+                end if;
+            end if;
+
+            -- the engine reloaded the channel's timer in the cycle before: a tick of that
+            -- cycle does not count (the former per-channel timer's rule), a tick of this one does
+            if reload_q = '1' then
+                todo(ev_ch) <= '0';
+            end if;
+
+            -- write-back of the engine's item
+            if wb_go = '1' then
+                -- only a change: tx_ack_i may have moved the channel on meanwhile
+                if state /= state_ld then
+                    ch_state(ev_ch) <= state;
+                end if;
+
+                if new_frame = '1' then
+                    txw(ev_ch) <= '1';
+                end if;
+
+                if done_q = '1' then
+                    c_done(ev_ch)   <= '1';
+                    todo(ev_ch)     <= '0';
+                    res_err(ev_ch)  <= error_q;
+                    res_code(ev_ch) <= ctx.abort_code;
+                    res_sent(ev_ch) <= abort_sent_q;
+                    res_size(ev_ch) <= std_logic_vector(resize(size_q, 11));
+                end if;
+            end if;
+
+            -- ms tick: every waiting channel's timer is due for one decrement (the sweep); last,
+            -- so that a tick is never lost
+            if tick_ms_i = '1' then
+
+                for c in 0 to N_SDO - 1 loop
+
+                    if ch_state(c) /= S_IDLE and ch_state(c) /= S_START then
+                        todo(c) <= '1';
+                    end if;
+
+                end loop;
+
+            end if;
+        end if;
+
+    end process chan_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Decision on the received frame for the loaded channel (applied by the engine in E_RUN)
+    -- ---------------------------------------------------------------------------------------------
+    rx_dec_proc : process (ctx, rx_data_q, rx_dlc_q, rx_rtr_q, state) is
+
+        variable d      : rxd_t;
+        variable cmd    : std_logic_vector(7 downto 0);
+        variable mux_ok : boolean;
+        variable cnt    : unsigned(3 downto 0);
+        variable total  : unsigned(cnt_w_c downto 0);
+        variable ind_v  : unsigned(31 downto 0);
+
+    begin
+
+        d.unexp    := '0';
+        d.abort    := '0';
+        d.code     := rx_data_q(63 downto 32);
+        d.srv      := '0';
+        d.ok_end   := '0';
+        d.dl_seg   := '0';
+        d.ul_seg   := '0';
+        d.tgl      := '0';
+        d.wr       := '0';
+        d.fin      := '0';
+        d.wr_a     := (others => '0');
+        d.wr_n     := (others => '0');
+        d.wr_d     := rx_data_q(63 downto 8);
+        d.pos      := ctx.pos;
+        d.acked_up := '0';
+        d.acked    := ctx.pos;
+        d.init_ul  := '0';
+        d.known    := '0';
+        d.ind      := (others => '0');
+        d.empty    := '0';
+
+        cmd    := rx_data_q(7 downto 0);
+        mux_ok := rx_data_q(31 downto 8) = ctx.sub & ctx.idx;
+        ind_v  := unsigned(rx_data_q(63 downto 32));
+        cnt    := sdo_seg_bytes_c - resize(unsigned(cmd(sdo_n_hi_c downto sdo_seg_n_lo_c)), 4);
+        total  := resize(ctx.pos, cnt_w_c + 1) + cnt;
+
+        if (state /= S_DL_INIT_WAIT and state /= S_DL_SEG_WAIT and state /= S_UL_INIT_WAIT
+            and state /= S_UL_SEG_WAIT) or rx_rtr_q = '1' then
+            -- no response expected now, or a remote frame (a request, never a response): not
+            -- ours
+            d.unexp := '1';
+        elsif rx_dlc_q /= sdo_dlc_c then
+            d.abort := '1';
+            d.code  := SDO_ABORT_CS_C;
+        elsif cmd(sdo_cs_hi_c downto sdo_cs_lo_c) = SDO_CS_ABORT_C then
+            -- server abort: only for our multiplexer
+            if mux_ok then
+                d.srv := '1';
+            else
+                d.unexp := '1';
+            end if;
+        else
+
+            case state is
+
+                when S_DL_INIT_WAIT =>
+
+                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_INIT_C then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_CS_C;
+                    elsif not mux_ok then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_GENERAL_C;
+                    elsif ctx.expedited = '1' then
+                        d.acked_up := '1';
+                        d.acked    := ctx.size_req;
+                        d.ok_end   := '1';
+                    else
+                        d.dl_seg := '1';
+                    end if;
+
+                when S_DL_SEG_WAIT =>
+
+                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_SEG_C then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_CS_C;
+                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_TOGGLE_C;
+                    else
+                        d.acked_up := '1';
+
+                        if ctx.last_seg = '1' then
+                            d.ok_end := '1';
+                        else
+                            d.dl_seg := '1';
+                            d.tgl    := not ctx.toggle;
+                        end if;
+                    end if;
+
+                when S_UL_INIT_WAIT =>
+
+                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_INIT_C then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_CS_C;
+                    elsif not mux_ok then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_GENERAL_C;
+                    elsif cmd(sdo_e_bit_c) = '1' then
+                        -- expedited: 4 - n bytes (4 when the size is not indicated)
+                        if cmd(sdo_s_bit_c) = '1' then
+                            d.wr_n := sdo_exp_bytes_c
+                                      - resize(unsigned(cmd(sdo_n_hi_c downto sdo_init_n_lo_c)),
+                                                 4);
+                        else
+                            d.wr_n := to_unsigned(sdo_exp_bytes_c, 4);
+                        end if;
+                        d.wr   := '1';
+                        d.fin  := '1';
+                        d.wr_d := x"000000" & rx_data_q(63 downto 32);
+                        d.pos  := resize(d.wr_n, cnt_w_c);
+                    elsif cmd(sdo_s_bit_c) = '1' and ind_v > BUF_BYTES then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_OUT_OF_MEM_C;
+                    else
+                        d.init_ul := '1';
+                        d.known   := cmd(sdo_s_bit_c);
+                        d.ind     := resize(ind_v, cnt_w_c);
+                        d.ul_seg  := '1';
+                    end if;
+
+                when S_UL_SEG_WAIT =>
+
+                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_SEG_C then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_CS_C;
+                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_TOGGLE_C;
+                    elsif cmd(sdo_c_bit_c) = '0' and cnt = 0
+                          and ctx.empty_cnt = EMPTY_SEGS_MAX then
+                        -- one more segment without data and without an end: the server keeps
+                        -- the transfer alive without progress
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_GENERAL_C;
+                    elsif ctx.size_known = '1' and total > ctx.ind_size then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_LENGTH_C;
+                    elsif total > BUF_BYTES then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_OUT_OF_MEM_C;
+                    elsif cmd(sdo_c_bit_c) = '1' and ctx.size_known = '1'
+                          and total /= ctx.ind_size then
+                        d.abort := '1';
+                        d.code  := SDO_ABORT_LENGTH_C;
+                    else
+                        d.wr   := '1';
+                        d.wr_a := ctx.pos(addr_w_c - 1 downto 0);
+                        d.wr_n := cnt;
+                        d.pos  := total(cnt_w_c - 1 downto 0);
+
+                        if cmd(sdo_c_bit_c) = '1' then
+                            d.fin := '1';
+                        else
+                            d.ul_seg := '1';
+                            d.tgl    := not ctx.toggle;
+
+                            if cnt = 0 then
+                                d.empty := '1';
+                            end if;
+                        end if;
+                    end if;
+
+                when others =>
+
+                    null;
+
+            end case;
+
+        end if;
+
+        rxd <= d;
+
+    end process rx_dec_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- The engine: one work item at a time (read the context, process, write back), the buffer
+    -- units, the receive capture
+    -- ---------------------------------------------------------------------------------------------
+    eng_proc : process (clk_i, rst_n_i) is
+
+        variable tmo_exp   : boolean;
+        variable cnt       : unsigned(3 downto 0);
+        variable rem_v     : unsigned(cnt_w_c - 1 downto 0);
+        variable last_v    : std_logic;
+        variable tgl_v     : std_logic;
+        variable data_v    : std_logic_vector(55 downto 0);
+        variable do_dl_seg : boolean;
+        variable do_ul_seg : boolean;
+        variable do_abort  : boolean;
+        variable abort_v   : std_logic_vector(31 downto 0);
+        variable do_end    : boolean;
+        variable withdraw  : boolean;
+        variable reload    : boolean;
+        variable end_err   : std_logic;
+        variable end_code  : std_logic_vector(31 downto 0);
+        variable end_sent  : std_logic;
+
+    begin
+
+        if rst_n_i = '0' then
+            eng           <= E_IDLE;
+            ev            <= EV_ACK;
+            ev_ch         <= 0;
+            state         <= S_IDLE;
+            state_ld      <= S_IDLE;
+            done_q        <= '0';
+            error_q       <= '0';
+            abort_sent_q  <= '0';
+            size_q        <= (others => '0');
+            new_frame     <= '0';
+            bld           <= B_NONE;
+            fin_pend      <= '0';
+            rx_item_reply <= '0';
+            rx_item_unexp <= '0';
+            rx_pend       <= '0';
+            rx_ch         <= 0;
+            rx_done_q     <= '0';
+            reload_q      <= '0';
+            wd_q          <= '0';
+            rx_reply_q    <= '0';
+            rx_unexp_q    <= '0';
+            nohit_pipe    <= (others => '0');
+            fetch_ph      <= 0;
+            wr_ph         <= 0;
+        elsif rising_edge(clk_i) then
+            rx_done_q  <= '0';
+            reload_q   <= '0';
+            wd_q       <= '0';
+            rx_reply_q <= '0';
+            rx_unexp_q <= '0';
+            do_dl_seg  := false;
+            do_ul_seg  := false;
+            do_abort   := false;
+            abort_v    := (others => '0');
+            do_end     := false;
+            withdraw   := false;
+            reload     := false;
+            end_err    := '0';
+            end_code   := (others => '0');
+            end_sent   := '0';
+            tgl_v      := '0';
+            tmo_exp    := false;
+
             -- buffer read unit ---------------------------------------------------------------
             case fetch_ph is
 
@@ -1107,50 +1449,15 @@ begin
             end if;
 
             -- engine -------------------------------------------------------------------------
-            cmd    := rx_data_q(7 downto 0);
-            mux_ok := rx_data_q(31 downto 8) = ctx.sub & ctx.idx;
-
             case eng is
 
                 when E_IDLE =>
 
-                    -- the next work item: tx ack > received frame > start > timer sweep
-                    eng <= E_READ;
-
-                    if ack_pend = '1' then
-                        ev       <= EV_ACK;
-                        ev_ch    <= ack_ch;
-                        ack_pend <= '0';
-                    elsif rx_pend = '1' then
-                        ev    <= EV_RX;
-                        ev_ch <= rx_ch;
-                    else
-                        found := false;
-
-                        for c in 0 to N_SDO - 1 loop
-
-                            if not found and ch_state(c) = S_START then
-                                ev    <= EV_START;
-                                ev_ch <= c;
-                                found := true;
-                            end if;
-
-                        end loop;
-
-                        for c in 0 to N_SDO - 1 loop
-
-                            if not found and todo(c) = '1' then
-                                ev      <= EV_TICK;
-                                ev_ch   <= c;
-                                todo(c) <= '0';
-                                found   := true;
-                            end if;
-
-                        end loop;
-
-                        if not found then
-                            eng <= E_IDLE;
-                        end if;
+                    -- the next work item (disp_proc): tx ack > received frame > start > sweep
+                    if disp_go = '1' then
+                        ev    <= disp_ev;
+                        ev_ch <= disp_ch;
+                        eng   <= E_READ;
                     end if;
 
                 when E_READ =>
@@ -1189,163 +1496,64 @@ begin
 
                     eng <= E_WAIT;
 
-                    -- received frame -----------------------------------------------------------
+                    -- received frame (decided by rx_dec_proc) ----------------------------------
                     if ev = EV_RX then
-                        is_wait := state = S_DL_INIT_WAIT or state = S_DL_SEG_WAIT
-                                   or state = S_UL_INIT_WAIT or state = S_UL_SEG_WAIT;
+                        rx_item_unexp <= rxd.unexp;
 
-                        if not is_wait or rx_rtr_q = '1' then
-                            -- no response expected now, or a remote frame (a request, never
-                            -- a response): not ours
-                            rx_item_unexp <= '1';
-                        elsif rx_dlc_q /= sdo_dlc_c then
+                        if rxd.abort = '1' then
                             do_abort := true;
-                            abort_v  := SDO_ABORT_CS_C;
-                        elsif cmd(sdo_cs_hi_c downto sdo_cs_lo_c) = SDO_CS_ABORT_C then
-                            -- server abort: only for our multiplexer
-                            if mux_ok then
-                                do_end   := true;
-                                end_err  := '1';
-                                end_code := rx_data_q(63 downto 32);
-                                end_sent := '0';
-                            else
-                                rx_item_unexp <= '1';
-                            end if;
-                        else
-
-                            case state is
-
-                                when S_DL_INIT_WAIT =>
-
-                                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_INIT_C then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_CS_C;
-                                    elsif not mux_ok then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_GENERAL_C;
-                                    elsif ctx.expedited = '1' then
-                                        ctx.acked <= ctx.size_req;
-                                        do_end    := true;
-                                    else
-                                        do_dl_seg := true;
-                                        tgl_v     := '0';
-                                    end if;
-
-                                when S_DL_SEG_WAIT =>
-
-                                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_SEG_C then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_CS_C;
-                                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_TOGGLE_C;
-                                    else
-                                        ctx.acked <= ctx.pos;
-
-                                        if ctx.last_seg = '1' then
-                                            do_end := true;
-                                        else
-                                            do_dl_seg := true;
-                                            tgl_v     := not ctx.toggle;
-                                        end if;
-                                    end if;
-
-                                when S_UL_INIT_WAIT =>
-
-                                    ind_v := unsigned(rx_data_q(63 downto 32));
-
-                                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_INIT_C then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_CS_C;
-                                    elsif not mux_ok then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_GENERAL_C;
-                                    elsif cmd(sdo_e_bit_c) = '1' then
-                                        -- expedited: 4 - n bytes (4 when the size is not
-                                        -- indicated)
-                                        if cmd(sdo_s_bit_c) = '1' then
-                                            cnt := sdo_exp_bytes_c
-                                                   - resize(unsigned(cmd(sdo_n_hi_c
-                                                                            downto sdo_init_n_lo_c)),
-                                                              4);
-                                        else
-                                            cnt := to_unsigned(sdo_exp_bytes_c, 4);
-                                        end if;
-                                        wr_ph                <= 1;
-                                        wr_addr              <= (others => '0');
-                                        wr_cnt               <= cnt;
-                                        wr_data(31 downto 0) <= rx_data_q(63 downto 32);
-                                        ctx.pos              <= resize(cnt, cnt_w_c);
-                                        state                <= S_FINISH;
-                                        fin_pend             <= '1';
-                                    elsif cmd(sdo_s_bit_c) = '1' and ind_v > BUF_BYTES then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_OUT_OF_MEM_C;
-                                    else
-                                        ctx.size_known <= cmd(sdo_s_bit_c);
-                                        ctx.ind_size   <= resize(ind_v, cnt_w_c);
-                                        do_ul_seg      := true;
-                                        tgl_v          := '0';
-                                    end if;
-
-                                when S_UL_SEG_WAIT =>
-
-                                    cnt   := sdo_seg_bytes_c
-                                             - resize(unsigned(cmd(sdo_n_hi_c
-                                                                      downto sdo_seg_n_lo_c)), 4);
-                                    total := resize(ctx.pos, cnt_w_c + 1) + cnt;
-
-                                    if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_SEG_C then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_CS_C;
-                                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_TOGGLE_C;
-                                    elsif cmd(sdo_c_bit_c) = '0' and cnt = 0
-                                          and ctx.empty_cnt = EMPTY_SEGS_MAX then
-                                        -- one more segment without data and without an end:
-                                        -- the server keeps the transfer alive without progress
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_GENERAL_C;
-                                    elsif ctx.size_known = '1' and total > ctx.ind_size then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_LENGTH_C;
-                                    elsif total > BUF_BYTES then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_OUT_OF_MEM_C;
-                                    elsif cmd(sdo_c_bit_c) = '1' and ctx.size_known = '1'
-                                          and total /= ctx.ind_size then
-                                        do_abort := true;
-                                        abort_v  := SDO_ABORT_LENGTH_C;
-                                    else
-                                        wr_ph   <= 1;
-                                        wr_addr <= ctx.pos(addr_w_c - 1 downto 0);
-                                        wr_cnt  <= cnt;
-                                        wr_data <= rx_data_q(63 downto 8);
-                                        ctx.pos <= total(cnt_w_c - 1 downto 0);
-
-                                        if cmd(sdo_c_bit_c) = '1' then
-                                            state    <= S_FINISH;
-                                            fin_pend <= '1';
-                                        else
-                                            do_ul_seg := true;
-                                            tgl_v     := not ctx.toggle;
-
-                                            if cnt = 0 then
-                                                ctx.empty_cnt <= ctx.empty_cnt + 1;
-                                            end if;
-                                        end if;
-                                    end if;
-
-                                when others =>
-
-                                    null;
-
-                            end case;
-
+                            abort_v  := rxd.code;
                         end if;
 
-                        if do_dl_seg or do_ul_seg or do_abort then
+                        if rxd.srv = '1' then
+                            -- server abort: the transfer ends with its code, no frame
+                            do_end   := true;
+                            end_err  := '1';
+                            end_code := rxd.code;
+                            end_sent := '0';
+                        end if;
+
+                        if rxd.ok_end = '1' then
+                            do_end := true;
+                        end if;
+
+                        if rxd.acked_up = '1' then
+                            ctx.acked <= rxd.acked;
+                        end if;
+
+                        if rxd.dl_seg = '1' then
+                            do_dl_seg := true;
+                            tgl_v     := rxd.tgl;
+                        end if;
+
+                        if rxd.ul_seg = '1' then
+                            do_ul_seg := true;
+                            tgl_v     := rxd.tgl;
+                        end if;
+
+                        if rxd.wr = '1' then
+                            wr_ph   <= 1;
+                            wr_addr <= rxd.wr_a;
+                            wr_cnt  <= rxd.wr_n;
+                            wr_data <= rxd.wr_d;
+                            ctx.pos <= rxd.pos;
+                        end if;
+
+                        if rxd.fin = '1' then
+                            state    <= S_FINISH;
+                            fin_pend <= '1';
+                        end if;
+
+                        if rxd.init_ul = '1' then
+                            ctx.size_known <= rxd.known;
+                            ctx.ind_size   <= rxd.ind;
+                        end if;
+
+                        if rxd.empty = '1' then
+                            ctx.empty_cnt <= ctx.empty_cnt + 1;
+                        end if;
+
+                        if rxd.abort = '1' or rxd.dl_seg = '1' or rxd.ul_seg = '1' then
                             rx_item_reply <= '1';
                         end if;
                     end if;
@@ -1480,26 +1688,9 @@ begin
                 when E_WB =>
 
                     -- write back (the context RAM port is the start's in a start cycle)
+                    -- (state, frame flag and result go to the channel's flip-flops: chan_proc)
                     if st_go = '0' then
                         eng <= E_IDLE;
-
-                        -- only a change: tx_ack_i may have moved the channel on meanwhile
-                        if state /= state_ld then
-                            ch_state(ev_ch) <= state;
-                        end if;
-
-                        if new_frame = '1' then
-                            txw(ev_ch) <= '1';
-                        end if;
-
-                        if done_q = '1' then
-                            c_done(ev_ch)   <= '1';
-                            todo(ev_ch)     <= '0';
-                            res_err(ev_ch)  <= error_q;
-                            res_code(ev_ch) <= ctx.abort_code;
-                            res_sent(ev_ch) <= abort_sent_q;
-                            res_size(ev_ch) <= std_logic_vector(resize(size_q, 11));
-                        end if;
 
                         if ev = EV_RX then
                             rx_pend <= '0';
@@ -1525,21 +1716,6 @@ begin
                     end if;
 
             end case;
-
-            -- ms tick: every waiting channel's timer is due for one decrement (the sweep); after the
-            -- dispatch above (a tick is never lost), before a reload below (which wins, as in the
-            -- former per-channel timer)
-            if tick_ms_i = '1' then
-
-                for c in 0 to N_SDO - 1 loop
-
-                    if ch_state(c) /= S_IDLE and ch_state(c) /= S_START then
-                        todo(c) <= '1';
-                    end if;
-
-                end loop;
-
-            end if;
 
             -- actions --------------------------------------------------------------------------
             if do_dl_seg then
@@ -1570,15 +1746,12 @@ begin
             if reload then
                 -- a tick before this reload does not count (the old per-channel timer's rule)
                 ctx.tmo_cnt <= ctx.tmo_ms;
-                todo(ev_ch) <= '0';
+                reload_q    <= '1';
             end if;
 
             if withdraw then
-                txw(ev_ch) <= '0';
-
-                if tx_full = '1' and tx_ch = ev_ch then
-                    tx_full <= '0';
-                end if;
+                -- the waiting request is withdrawn (chan_proc, next cycle)
+                wd_q <= '1';
             end if;
 
             if do_end then
@@ -1613,7 +1786,7 @@ begin
             nohit_pipe(1) <= nohit_pipe(0);
         end if;
 
-    end process main_proc;
+    end process eng_proc;
 
     rx_done_o       <= rx_done_q or nohit_pipe(1);
     rx_reply_o      <= rx_reply_q;
