@@ -132,10 +132,16 @@ architecture rtl of canopen_sdo_channels is
     constant words_c  : positive := BUF_BYTES / 4;    -- words per channel in each lane RAM
     constant cnt_w_c  : positive := addr_w_c + 1;     -- byte counts 0..BUF_BYTES
     constant depth_c  : positive := N_SDO * words_c;  -- words of each lane RAM
-    -- context word: the fields of ctx_t, packed by ctx_pack
-    constant ctx_w_c : positive := 112 + 4 * cnt_w_c;
-    -- frame word: identifier (11) and data (64)
-    constant frm_w_c : positive := 75;
+    -- width of the empty-segment counter (0..EMPTY_SEGS_MAX)
+    constant emp_w_c : positive := max_nat(1, clog2(EMPTY_SEGS_MAX + 1));
+    -- context word: the fields of ctx_t, packed by ctx_pack (131 bits with the defaults: four
+    -- M9K at x36)
+    constant ctx_w_c : positive := 93 + emp_w_c + 4 * cnt_w_c;
+    -- frame word: the data bytes (the identifier is the channel's run_req)
+    constant frm_w_c : positive := 64;
+    -- depth of the context and frame RAMs: at least 8 words, so that the synthesis maps them
+    -- to block RAM (yosys' minimum efficiency for an M9K), not to flip-flops
+    constant small_d_c : positive := max_nat(N_SDO, 8);
 
     function check_config return boolean is
     begin
@@ -204,7 +210,6 @@ architecture rtl of canopen_sdo_channels is
         upload     : std_logic;                      -- 1 = upload
         idx        : std_logic_vector(15 downto 0);  -- object index
         sub        : std_logic_vector(7 downto 0);   -- object subindex
-        cob_tx     : std_logic_vector(10 downto 0);  -- request COB-ID
         size_req   : unsigned(cnt_w_c - 1 downto 0); -- download: bytes to send
         expedited  : std_logic;                      -- download fits one expedited frame
         pos        : unsigned(cnt_w_c - 1 downto 0); -- bytes put into frames / received
@@ -215,14 +220,14 @@ architecture rtl of canopen_sdo_channels is
         ind_size   : unsigned(cnt_w_c - 1 downto 0); -- upload: indicated size
         tmo_ms     : unsigned(15 downto 0);          -- timeout of the transfer [ms]
         tmo_cnt    : unsigned(15 downto 0);          -- ms ticks left
-        empty_cnt  : unsigned(7 downto 0);           -- empty upload segments so far
+        empty_cnt  : unsigned(emp_w_c - 1 downto 0); -- empty upload segments so far
         abort_code : std_logic_vector(31 downto 0);  -- abort code (received or sent)
     end record ctx_t;
 
     function ctx_pack (c : ctx_t) return std_logic_vector is
     begin
 
-        return c.upload & c.idx & c.sub & c.cob_tx & std_logic_vector(c.size_req) & c.expedited
+        return c.upload & c.idx & c.sub & std_logic_vector(c.size_req) & c.expedited
                & std_logic_vector(c.pos) & std_logic_vector(c.acked) & c.last_seg & c.toggle
                & c.size_known & std_logic_vector(c.ind_size) & std_logic_vector(c.tmo_ms)
                & std_logic_vector(c.tmo_cnt) & std_logic_vector(c.empty_cnt) & c.abort_code;
@@ -243,8 +248,6 @@ architecture rtl of canopen_sdo_channels is
         p            := p - 16;
         c.sub        := w(p - 1 downto p - 8);
         p            := p - 8;
-        c.cob_tx     := w(p - 1 downto p - 11);
-        p            := p - 11;
         c.size_req   := unsigned(w(p - 1 downto p - cnt_w_c));
         p            := p - cnt_w_c;
         c.expedited  := w(p - 1);
@@ -263,7 +266,7 @@ architecture rtl of canopen_sdo_channels is
         p            := p - 16;
         c.tmo_cnt    := unsigned(w(p - 1 downto p - 16));
         p            := p - 16;
-        c.empty_cnt  := unsigned(w(p - 1 downto p - 8));
+        c.empty_cnt  := unsigned(w(p - 1 downto p - emp_w_c));
         c.abort_code := w(31 downto 0);
         return c;
 
@@ -667,11 +670,9 @@ begin
         if host_go = '1' then
             c.idx    := host_index_i;
             c.sub    := host_sub_i;
-            c.cob_tx := host_req_cob;
         else
             c.idx    := own_index_i;
             c.sub    := own_sub_i;
-            c.cob_tx := own_req_cob;
         end if;
 
         c.size_req   := resize(unsigned(st_size), cnt_w_c);
@@ -710,7 +711,7 @@ begin
 
     ctx_ram_inst : entity work.canopen_sdp_ram
         generic map (
-            DEPTH => N_SDO,
+            DEPTH => small_d_c,
             WIDTH => ctx_w_c
         )
         port map (
@@ -724,11 +725,11 @@ begin
         );
 
     frm_we    <= wb_go and new_frame;
-    frm_wdata <= ctx.cob_tx & tx_data;
+    frm_wdata <= tx_data;
 
     frm_ram_inst : entity work.canopen_sdp_ram
         generic map (
-            DEPTH => N_SDO,
+            DEPTH => small_d_c,
             WIDTH => frm_w_c
         )
         port map (
@@ -1793,9 +1794,9 @@ begin
     rx_unexpected_o <= rx_unexp_q or nohit_pipe(1);
 
     tx_req_o  <= tx_full;
-    tx_id_o   <= frm_rdata(74 downto 64);
+    tx_id_o   <= run_req(tx_ch);
     tx_dlc_o  <= sdo_dlc_c;
-    tx_data_o <= frm_rdata(63 downto 0);
+    tx_data_o <= frm_rdata;
 
     -- ---------------------------------------------------------------------------------------------
     -- Abort counting: one strobe per aborted transfer, none lost when two end together

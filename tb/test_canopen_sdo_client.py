@@ -196,6 +196,7 @@ class TB:
         self.mangle: Callable[[can.Message], can.Message | None] | None = None
         self.done_count = 0
         self.done_base = 0
+        self.chan_done: list[list[int]] = [[] for _ in range(4)]
         self._done_event = Event()
         self.t_req_edge = 0
         for sig in (dut.tick_ms_i, dut.req_valid_i, dut.req_upload_i, dut.req_node_i,
@@ -294,11 +295,18 @@ class TB:
                     f"unexpected frame changed state {rec.state_before} -> {rec.state_after}"
 
     async def _done_counter(self) -> None:
-        """done_o of channel 0: its bit of chan_done_o (a 1-cycle strobe)."""
+        """done_o of channel 0: its bit of chan_done_o (a 1-cycle strobe); every channel's
+        done strobes are also recorded with their times (``chan_done``)."""
         sig = self.raw.chan_done_o
         while True:
             await sig.value_change
-            if sig.value.is_resolvable and int(sig.value) & 1:
+            if not sig.value.is_resolvable:
+                continue
+            bits = int(sig.value)
+            for c in range(4):
+                if bits >> c & 1:
+                    self.chan_done[c].append(sim_time_ps())
+            if bits & 1:
                 self.done_count += 1
                 self._done_event.set()
 
@@ -324,8 +332,9 @@ class TB:
         if on:
             self._take_event.set()
 
-    async def write_buf(self, data: bytes, offset_words: int = 0) -> None:
+    async def write_buf(self, data: bytes, offset_words: int = 0, chan: int = 0) -> None:
         dut = self.dut
+        dut.host_chan_i.value = chan
         data = data + bytes(-len(data) % 4)
         for w in range(len(data) // 4):
             await FallingEdge(dut.clk_i)
@@ -334,9 +343,11 @@ class TB:
             dut.buf_we_i.value = 1
         await FallingEdge(dut.clk_i)
         dut.buf_we_i.value = 0
+        dut.host_chan_i.value = 0
 
-    async def read_buf(self, n: int) -> bytes:
+    async def read_buf(self, n: int, chan: int = 0) -> bytes:
         dut = self.dut
+        dut.host_chan_i.value = chan
         out = bytearray()
         for w in range(-(-n // 4)):
             await FallingEdge(dut.clk_i)
@@ -344,7 +355,50 @@ class TB:
             await RisingEdge(dut.clk_i)  # address sampled, word registered at this edge
             await ReadOnly()
             out += int(dut.buf_rdata_o.value).to_bytes(4, "little")
+        await FallingEdge(dut.clk_i)
+        dut.host_chan_i.value = 0
         return bytes(out[:n])
+
+    async def start_all(self, reqs: list[dict]) -> None:
+        """One request per channel (reqs[c] for channel c) in consecutive clock cycles."""
+        dut = self.raw
+        for c, r in enumerate(reqs):
+            await FallingEdge(dut.clk_i)
+            dut.host_chan_i.value = c
+            dut.host_upload_i.value = int(r["upload"])
+            dut.host_node_i.value = r["node"]
+            dut.host_index_i.value = r["index"]
+            dut.host_sub_i.value = 0
+            dut.host_size_i.value = r.get("size", 0)
+            dut.host_cob_req_i.value = 0
+            dut.host_cob_rsp_i.value = 0
+            dut.timeout_ms_i.value = r.get("timeout_ms", 20)
+            dut.host_req_i.value = 1
+        await FallingEdge(dut.clk_i)
+        dut.host_req_i.value = 0
+        dut.host_chan_i.value = 0
+
+    async def results(self) -> list[tuple[int, int, int, int]]:
+        """(error, abort code, abort sent, size) of every channel, read through host_chan_i."""
+        dut = self.raw
+        out = []
+        for c in range(self.n_sdo):
+            await FallingEdge(dut.clk_i)
+            dut.host_chan_i.value = c
+            await ReadOnly()
+            out.append((int(dut.error_o.value), int(dut.abort_code_o.value),
+                        int(dut.abort_sent_o.value), int(dut.size_o.value)))
+        await FallingEdge(dut.clk_i)
+        dut.host_chan_i.value = 0
+        return out
+
+    async def wait_all_idle(self, limit_ms: float) -> None:
+        dut = self.raw
+        t_end = sim_time_ps() + int(limit_ms * PS_PER_MS)
+        await Timer(1, "us")
+        while int(dut.chan_busy_o.value) != 0:
+            assert sim_time_ps() < t_end, f"channels still busy after {limit_ms} ms"
+            await Timer(10, "us")
 
     async def request(self, *, upload: bool, index: int, sub: int = 0, size: int = 0,
                       node: int = NODE, timeout_ms: int = 20, cob_req: int = 0,
@@ -1033,6 +1087,83 @@ async def run_zero_latency_server(dut):
     lat = [r.latency for r in tb.rx_log]
     assert (d_dl, d_ul) == (10 + 1, 7 + 1), f"request -> frame taken: {d_dl}, {d_ul} edges"
     assert (min(lat), max(lat)) == (ZL_RX_MIN, ZL_RX_MAX), f"rx latencies {sorted(set(lat))}"
+
+
+@cocotb.test(timeout_time=200, timeout_unit="ms")
+async def run_all_channels_at_once(dut):
+    """Purpose: every channel of the shared engine runs a transfer at the same time.
+
+    Verifies: with one slave per channel (nodes 5, 6, ...), N_SDO segmented downloads of
+    different data started in consecutive clock cycles all complete: each slave's 2000h holds
+    its channel's bytes, each channel sent exactly the CiA 301 frame sequence on its own
+    request COB-ID, the requests of the channels interleave on the bus, each channel's done
+    strobe came once; then N_SDO uploads started together return each channel's bytes in its
+    own buffer region (channel c's buffer shows node 5 + c's data).
+    """
+    tb = TB(dut)
+    n = tb.n_sdo
+    slaves = [tb.slave] + [CanopenSlave(tb.sched, NODE + c, bitrate_bps=BITRATE,
+                                        boot_time_ps=20 * PS_PER_US) for c in range(1, n)]
+    for sl in slaves[1:]:
+        tb.bus.attach(sl)
+    await tb.start()
+    await tb.wait_for(lambda: all(sl.nmt_state is NmtState.PRE_OPERATIONAL for sl in slaves),
+                      1000)
+    datas = [bytes((17 * c + k) & 0xFF for k in range(40 + 3 * c)) for c in range(n)]
+    for c in range(n):
+        await tb.write_buf(datas[c], chan=c)
+    n_tx0 = len(tb.tx_log)
+    await tb.start_all([{"upload": False, "node": NODE + c, "index": DOMAIN,
+                         "size": len(datas[c])} for c in range(n)])
+    await tb.wait_all_idle(100)
+    for c, (err, code, sent, size) in enumerate(await tb.results()):
+        assert (err, code, sent, size) == (0, 0, 0, len(datas[c])), f"channel {c}: {code:08X}"
+        check_data(slaves[c].read_raw(DOMAIN), datas[c], f"node {NODE + c} 2000h")
+        frames = [bytes(m.data) for _, m in tb.tx_log[n_tx0:]
+                  if m.arbitration_id == 0x600 + NODE + c]
+        assert frames == expected_download(DOMAIN, 0, datas[c]), f"channel {c} frames"
+        assert len(tb.chan_done[c]) == 1, f"channel {c}: {len(tb.chan_done[c])} done strobes"
+    ids = [m.arbitration_id for _, m in tb.tx_log[n_tx0:]]
+    switches = sum(a != b for a, b in zip(ids, ids[1:]))
+    assert switches > 2 * n, f"requests did not interleave: {[hex(i) for i in ids]}"
+
+    for c in range(n):  # clear the buffers so that the upload must fill them
+        await tb.write_buf(bytes(len(datas[c])), chan=c)
+    await tb.start_all([{"upload": True, "node": NODE + c, "index": DOMAIN} for c in range(n)])
+    await tb.wait_all_idle(100)
+    for c, (err, code, sent, size) in enumerate(await tb.results()):
+        assert (err, code, sent, size) == (0, 0, 0, len(datas[c])), f"channel {c}: {code:08X}"
+        check_data(await tb.read_buf(len(datas[c]), chan=c), datas[c], f"channel {c} upload")
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_all_channels_same_tick(dut):
+    """Purpose: work for every channel in the same cycle: one ms tick expires all timers.
+
+    Verifies: with the bench taking no frame, N_SDO uploads started in consecutive cycles just
+    after a ms tick (timeout 3 ms) all end at the same tick with 0504 0000h sent by the master
+    and no frame: every channel's done strobe comes between the 4th tick after the start and
+    N_SDO work items (8 cycles each) later, the order of the channels; no channel ends before.
+    """
+    tb = TB(dut)
+    n = tb.n_sdo
+    await tb.start()
+    tb.allow_tx(False)
+    await RisingEdge(dut.tick_ms_i)
+    await FallingEdge(dut.tick_ms_i)
+    t0 = sim_time_ps()
+    await tb.start_all([{"upload": True, "node": 0x30 + c, "index": 0x1000, "timeout_ms": 3}
+                        for c in range(n)])
+    await tb.wait_all_idle(10)
+    tb.allow_tx(True)
+    t_tick = t0 - CLK_PS + 4 * PS_PER_MS  # the 4th tick after the one before the starts
+    for c, (err, code, sent, _size) in enumerate(await tb.results()):
+        assert (err, code, sent) == (1, ABORT_TIMEOUT, 1), f"channel {c}: {code:08X}"
+        assert len(tb.chan_done[c]) == 1
+        dt = (tb.chan_done[c][0] - t_tick) // CLK_PS
+        assert 0 < dt <= 8 * n, f"channel {c} ended {dt} cycles after the expiring tick"
+    order = sorted(range(n), key=lambda c: tb.chan_done[c][0])
+    assert order == list(range(n)), f"sweep order {order}"
 
 
 @cocotb.test(timeout_time=20, timeout_unit="ms", expect_fail=True)
