@@ -334,7 +334,9 @@ class TB:
 
     async def write_buf(self, data: bytes, offset_words: int = 0, chan: int = 0) -> None:
         dut = self.dut
-        dut.host_chan_i.value = chan
+        if chan:
+            await FallingEdge(dut.clk_i)
+            dut.host_chan_i.value = chan
         data = data + bytes(-len(data) % 4)
         for w in range(len(data) // 4):
             await FallingEdge(dut.clk_i)
@@ -343,11 +345,14 @@ class TB:
             dut.buf_we_i.value = 1
         await FallingEdge(dut.clk_i)
         dut.buf_we_i.value = 0
-        dut.host_chan_i.value = 0
+        if chan:
+            dut.host_chan_i.value = 0
 
     async def read_buf(self, n: int, chan: int = 0) -> bytes:
         dut = self.dut
-        dut.host_chan_i.value = chan
+        if chan:
+            await FallingEdge(dut.clk_i)
+            dut.host_chan_i.value = chan
         out = bytearray()
         for w in range(-(-n // 4)):
             await FallingEdge(dut.clk_i)
@@ -355,8 +360,9 @@ class TB:
             await RisingEdge(dut.clk_i)  # address sampled, word registered at this edge
             await ReadOnly()
             out += int(dut.buf_rdata_o.value).to_bytes(4, "little")
-        await FallingEdge(dut.clk_i)
-        dut.host_chan_i.value = 0
+        if chan:
+            await FallingEdge(dut.clk_i)
+            dut.host_chan_i.value = 0
         return bytes(out[:n])
 
     async def start_all(self, reqs: list[dict]) -> None:
