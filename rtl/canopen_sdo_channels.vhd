@@ -668,11 +668,11 @@ begin
         c.upload := st_upload;
 
         if host_go = '1' then
-            c.idx    := host_index_i;
-            c.sub    := host_sub_i;
+            c.idx := host_index_i;
+            c.sub := host_sub_i;
         else
-            c.idx    := own_index_i;
-            c.sub    := own_sub_i;
+            c.idx := own_index_i;
+            c.sub := own_sub_i;
         end if;
 
         c.size_req   := resize(unsigned(st_size), cnt_w_c);
