@@ -658,8 +658,8 @@ begin
     st_big    <= '1' when st_upload = '0' and unsigned(st_size) > BUF_BYTES else
                  '0';
 
-    st_ctx_proc : process (host_go, host_index_i, host_req_cob, host_sub_i, own_index_i,
-                           own_req_cob, own_sub_i, st_size, st_upload, timeout_ms_i) is
+    st_ctx_proc : process (host_go, host_index_i, host_sub_i, own_index_i,
+                           own_sub_i, st_size, st_upload, timeout_ms_i) is
 
         variable c : ctx_t;
 
