@@ -62,7 +62,6 @@ add_fileset_file canopen_util_pkg.vhd     VHDL PATH ../rtl/canopen_util_pkg.vhd
 add_fileset_file canopen_sdp_ram.vhd      VHDL PATH ../rtl/canopen_sdp_ram.vhd
 add_fileset_file canopen_counter_bank.vhd VHDL PATH ../rtl/canopen_counter_bank.vhd
 add_fileset_file canopen_fifo.vhd         VHDL PATH ../rtl/canopen_fifo.vhd
-add_fileset_file canopen_sdo_client.vhd   VHDL PATH ../rtl/canopen_sdo_client.vhd
 add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.vhd
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd
@@ -90,7 +89,6 @@ add_fileset_file canopen_util_pkg.vhd     VHDL PATH ../rtl/canopen_util_pkg.vhd
 add_fileset_file canopen_sdp_ram.vhd      VHDL PATH ../rtl/canopen_sdp_ram.vhd
 add_fileset_file canopen_counter_bank.vhd VHDL PATH ../rtl/canopen_counter_bank.vhd
 add_fileset_file canopen_fifo.vhd         VHDL PATH ../rtl/canopen_fifo.vhd
-add_fileset_file canopen_sdo_client.vhd   VHDL PATH ../rtl/canopen_sdo_client.vhd
 add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.vhd
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd

@@ -12,7 +12,7 @@
 --   The host fills (ACFG_* registers) a table of entries {node, index, subindex,
 --   size 1..4, value}. On start_i the block walks the table from entry 0 until an entry with
 --   node 0 (or the end): consecutive entries with the same node form that node's list. Each entry
---   is one expedited SDO download through canopen_sdo_client (its value is written into the
+--   is one expedited SDO download through canopen_sdo_channels (its value is written into the
 --   client's buffer word 0 first). When all entries of a node succeeded the node is counted as
 --   configured and, with start_nodes_i, an NMT start for it is requested. The first failing
 --   entry of a node (server abort, client abort, timeout) stops that node: its remaining

@@ -10,7 +10,6 @@ canopen_util_pkg.vhd
 canopen_sdp_ram.vhd
 canopen_counter_bank.vhd
 canopen_fifo.vhd
-canopen_sdo_client.vhd
 canopen_sdo_channels.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
