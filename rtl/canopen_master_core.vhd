@@ -235,11 +235,19 @@ architecture rtl of canopen_master_core is
     signal tx_txp       : std_logic_vector(1 downto 0);
     signal tx_send      : std_logic;
     signal tx_requested : std_logic;
-    -- TXB1 holds a request of an SDO transfer (not an abort frame), with this COB-ID
+    -- TXB1 holds a request of an SDO transfer (not an abort frame), with this COB-ID; the frame
+    -- in St11/St12 is an SDO request (the SDO source's tx_abort_o = 0 when it was taken)
     signal txb1_sdo_req : std_logic;
     signal txb1_id      : std_logic_vector(10 downto 0);
-    -- the SDO source presents the abort frame of the transfer whose request waits in TXB1
-    signal sdo_cancel : std_logic;
+    signal tx_sdo_req   : std_logic;
+    -- an SDO transfer ended (canopen_sdo_channels wdr_req_o/wdr_id_o): its request waits in
+    -- TXB1 (cancel it), or an SDO frame is between St11 and TXB1 (wait), else withdrawn (ack)
+    signal sdo_cancel   : std_logic;
+    signal sdo_flight   : std_logic;
+    signal sdo_wdr_req  : std_logic;
+    signal sdo_wdr_id   : std_logic_vector(10 downto 0);
+    signal sdo_wdr_ack  : std_logic;
+    signal sdo_tx_abort : std_logic;
     -- the cancel of TXB1 was asked for (until TXB1 is free), and the pulse towards the chip
     signal cancel_sent  : std_logic;
     signal cancel_pulse : std_logic;
@@ -553,10 +561,15 @@ begin
     -- controller's RX FIFO and sends the reply by T20..T22 once the buffer is free; St12 never
     -- waits for a transmission to end (fuzz finding 2: RX overflow while St12 waited)
     pdo_reply_now <= pdo_rx_reply and not ctl_tx_pending_i(0);
-    sdo_cancel    <= '1' when sdo_tx_req = '1' and sdo_tx_data(7 downto 5) = SDO_CS_ABORT_C
-                              and ctl_tx_pending_i(1) = '1' and txb1_sdo_req = '1'
-                              and txb1_id = sdo_tx_id else
+    -- an ended SDO transfer (any end: client abort, server abort, timeout, ...) withdraws its
+    -- request still waiting in TXB1: cancelled (a frame already on the wire completes); the
+    -- transfer's DONE waits for the withdraw (fuzz finding 3)
+    sdo_cancel    <= '1' when sdo_wdr_req = '1' and ctl_tx_pending_i(1) = '1'
+                              and txb1_sdo_req = '1' and txb1_id = sdo_wdr_id else
                      '0';
+    sdo_flight    <= '1' when (in_encap = '1' or in_tx = '1') and gen_src = 3 else
+                     '0';
+    sdo_wdr_ack   <= sdo_wdr_req and not sdo_cancel and not sdo_flight;
     sdo_reply_now <= sdo_rx_reply and not ctl_tx_pending_i(1);
     nmt_reply_now <= mon_rx_reply and not ctl_tx_pending_i(1);
 
@@ -642,6 +655,7 @@ begin
         if rst_n_i = '0' then
             tx_requested     <= '0';
             txb1_sdo_req     <= '0';
+            tx_sdo_req       <= '0';
             cancel_sent      <= '0';
             cancel_pulse     <= '0';
             gen_src          <= 0;
@@ -794,6 +808,7 @@ begin
                         tx_buf        <= txb_cmd_c;
                         tx_txp        <= "10";
                         tx_send       <= '1';
+                        tx_sdo_req    <= not sdo_tx_abort;
                         sdo_tx_ack    <= '1';
 
                     when 4 =>
@@ -820,15 +835,14 @@ begin
             end if;
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_cmd_c then
                 txb1_id <= tx_frame.id;
-                if gen_src = 3 and tx_frame.data(7 downto 5) /= SDO_CS_ABORT_C then
+                if gen_src = 3 and tx_sdo_req = '1' then
                     txb1_sdo_req <= '1';
                 else
                     txb1_sdo_req <= '0';
                 end if;
             end if;
-            -- an SDO transfer ends by an abort while its last request still waits in TXB1: the
-            -- request is cancelled (a frame already on the wire completes) before the abort is
-            -- loaded, so it cannot reach the server after the transfer ended (fuzz finding 3)
+            -- an SDO transfer ended while its last request still waits in TXB1: the request is
+            -- cancelled once (again only after TXB1 was free) (fuzz finding 3)
             cancel_pulse <= sdo_cancel and not cancel_sent;
             if sdo_cancel = '1' then
                 cancel_sent <= '1';
@@ -1131,6 +1145,10 @@ begin
             tx_dlc_o        => sdo_tx_dlc,
             tx_data_o       => sdo_tx_data,
             tx_ack_i        => sdo_tx_ack,
+            tx_abort_o      => sdo_tx_abort,
+            wdr_req_o       => sdo_wdr_req,
+            wdr_id_o        => sdo_wdr_id,
+            wdr_ack_i       => sdo_wdr_ack,
             rx_match_o      => sdo_rx_match,
             rx_valid_i      => enter_sdo,
             rx_id_i         => rx_frame.id,

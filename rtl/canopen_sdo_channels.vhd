@@ -105,11 +105,18 @@ entity canopen_sdo_channels is
         own_error_o    : out   std_logic;                     -- with done: it failed
         own_abort_o    : out   std_logic_vector(31 downto 0); -- its abort code
         -- frame to transmit (towards the FSM, St9 -> St11)
-        tx_req_o  : out   std_logic;                     -- level: a frame is waiting
-        tx_id_o   : out   std_logic_vector(10 downto 0); -- identifier
-        tx_dlc_o  : out   std_logic_vector(3 downto 0);  -- data length code
-        tx_data_o : out   std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
-        tx_ack_i  : in    std_logic;                     -- strobe: frame taken
+        tx_req_o   : out   std_logic;                     -- level: a frame is waiting
+        tx_id_o    : out   std_logic_vector(10 downto 0); -- identifier
+        tx_dlc_o   : out   std_logic_vector(3 downto 0);  -- data length code
+        tx_data_o  : out   std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
+        tx_ack_i   : in    std_logic;                     -- strobe: frame taken
+        tx_abort_o : out   std_logic;                     -- the presented frame is an abort
+        -- withdraw of an ended transfer's request (towards the core's TXB1 cancel): the
+        -- transfer with request COB-ID wdr_id_o ended (or is aborted); its DONE waits for
+        -- wdr_ack_i (its request can no longer reach the server: cancelled or already sent)
+        wdr_req_o : out   std_logic;                     -- level: a withdraw is asked for
+        wdr_id_o  : out   std_logic_vector(10 downto 0); -- its request COB-ID
+        wdr_ack_i : in    std_logic;                     -- strobe: withdrawn (with wdr_req_o)
         -- received frame (from the FSM, St6)
         rx_match_o      : out   std_logic;                     -- rx_id_i = a running response
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
@@ -199,7 +206,8 @@ architecture rtl of canopen_sdo_channels is
         S_UL_SEG_TX,    -- upload segment request waiting for tx_ack_i
         S_UL_SEG_WAIT,  -- waiting for the upload segment response
         S_ABORT_TX,     -- abort frame from the client waiting for tx_ack_i
-        S_FINISH        -- upload: last bytes being written to the buffer (engine only)
+        S_FINISH,       -- upload: last bytes being written to the buffer (engine only)
+        S_END           -- ended, result stored: DONE waits for the withdraw of its request
     );
 
     type state_arr_t is array (0 to N_SDO - 1) of state_t;
@@ -437,6 +445,16 @@ architecture rtl of canopen_sdo_channels is
     signal c_done : chan_vec_t;
     -- sticky refused flag per channel
     signal refused : chan_vec_t;
+    -- the transfer ended or is aborted: its request must be withdrawn from TXB1 first (the
+    -- channel's abort frame is not presented and its DONE waits until wdr_ack_i)
+    signal wdr : chan_vec_t;
+    -- the withdraw shown on wdr_req_o / wdr_id_o, and its channel
+    signal wdr_cur : std_logic;
+    signal wdr_ch  : natural range 0 to N_SDO - 1;
+    -- the engine's channel has a withdraw open that is not acknowledged in this cycle
+    signal wdr_keep : std_logic;
+    -- a running transfer that takes responses (busy, not in S_END)
+    signal c_live : chan_vec_t;
 
     -- ---------------------------------------------------------------------------------------------
     -- admission
@@ -476,7 +494,9 @@ architecture rtl of canopen_sdo_channels is
     signal state_ld : state_t;
     signal state    : state_t;
     -- results of the item: the transfer ended (error, sent by the client, size)
-    signal done_q       : std_logic;
+    signal done_q : std_logic;
+    -- the item ended or aborted the transfer (not an end after the abort frame): withdraw
+    signal wdr_new_q    : std_logic;
     signal error_q      : std_logic;
     signal abort_sent_q : std_logic;
     signal size_q       : unsigned(cnt_w_c - 1 downto 0);
@@ -600,6 +620,8 @@ begin
 
     busy_gen : for c in 0 to N_SDO - 1 generate
         c_busy(c) <= '0' when ch_state(c) = S_IDLE else
+                     '1';
+        c_live(c) <= '0' when ch_state(c) = S_IDLE or ch_state(c) = S_END else
                      '1';
     end generate busy_gen;
 
@@ -742,8 +764,12 @@ begin
             rdata_o => frm_rdata
         );
 
+    wdr_keep <= '1' when wdr(ev_ch) = '1'
+                         and not (wdr_cur = '1' and wdr_ack_i = '1' and wdr_ch = ev_ch) else
+                '0';
+
     -- round robin: the next channel after tx_ch with a frame waiting
-    grant_proc : process (tx_ch, txw) is
+    grant_proc : process (tx_ch, txw, wdr) is
 
         variable ch_v  : natural range 0 to N_SDO - 1;
         variable any_v : std_logic;
@@ -755,7 +781,7 @@ begin
 
         for k in N_SDO downto 1 loop
 
-            if txw((tx_ch + k) mod N_SDO) = '1' then
+            if txw((tx_ch + k) mod N_SDO) = '1' and wdr((tx_ch + k) mod N_SDO) = '0' then
                 ch_v  := (tx_ch + k) mod N_SDO;
                 any_v := '1';
             end if;
@@ -778,7 +804,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
 
     hit_gen : for c in 0 to N_SDO - 1 generate
-        rx_hit(c) <= '1' when c_busy(c) = '1' and run_rsp(c) = rx_id_i else
+        rx_hit(c) <= '1' when c_live(c) = '1' and run_rsp(c) = rx_id_i else
                      '0';
     end generate hit_gen;
 
@@ -1014,8 +1040,34 @@ begin
             tx_ch     <= 0;
             ack_pend  <= '0';
             ack_ch    <= 0;
+            wdr       <= (others => '0');
+            wdr_cur   <= '0';
+            wdr_ch    <= 0;
         elsif rising_edge(clk_i) then
             c_done <= (others => '0');
+
+            -- withdraw: one at a time (lowest channel first); acknowledged, the channel's abort
+            -- frame may be presented and an ended transfer reports DONE
+            if wdr_cur = '1' and wdr_ack_i = '1' then
+                wdr_cur     <= '0';
+                wdr(wdr_ch) <= '0';
+
+                if ch_state(wdr_ch) = S_END then
+                    ch_state(wdr_ch) <= S_IDLE;
+                    c_done(wdr_ch)   <= '1';
+                end if;
+            elsif wdr_cur = '0' then
+
+                for c in N_SDO - 1 downto 0 loop
+
+                    if wdr(c) = '1' then
+                        wdr_cur <= '1';
+                        wdr_ch  <= c;
+                    end if;
+
+                end loop;
+
+            end if;
 
             -- admission ----------------------------------------------------------------------
             if host_req_i = '1' and host_go = '0' and sel_ok = '1' then
@@ -1140,8 +1192,17 @@ begin
                     txw(ev_ch) <= '1';
                 end if;
 
+                if wdr_new_q = '1' then
+                    wdr(ev_ch) <= '1';
+                end if;
+
                 if done_q = '1' then
-                    c_done(ev_ch)   <= '1';
+                    -- DONE once no request of the transfer can reach the server any more
+                    if wdr_new_q = '1' or wdr_keep = '1' then
+                        ch_state(ev_ch) <= S_END;
+                    else
+                        c_done(ev_ch) <= '1';
+                    end if;
                     todo(ev_ch)     <= '0';
                     res_err(ev_ch)  <= error_q;
                     res_code(ev_ch) <= ctx.abort_code;
@@ -1156,7 +1217,8 @@ begin
 
                 for c in 0 to N_SDO - 1 loop
 
-                    if ch_state(c) /= S_IDLE and ch_state(c) /= S_START then
+                    if ch_state(c) /= S_IDLE and ch_state(c) /= S_START
+                       and ch_state(c) /= S_END then
                         todo(c) <= '1';
                     end if;
 
@@ -1379,6 +1441,7 @@ begin
             state         <= S_IDLE;
             state_ld      <= S_IDLE;
             done_q        <= '0';
+            wdr_new_q     <= '0';
             error_q       <= '0';
             abort_sent_q  <= '0';
             size_q        <= (others => '0');
@@ -1472,6 +1535,7 @@ begin
 
                     ctx           <= ctx_unpack(ctx_rdata);
                     done_q        <= '0';
+                    wdr_new_q     <= '0';
                     error_q       <= '0';
                     abort_sent_q  <= '0';
                     new_frame     <= '0';
@@ -1480,7 +1544,7 @@ begin
                     rx_item_reply <= '0';
                     rx_item_unexp <= '0';
 
-                    if state = S_IDLE then
+                    if state = S_IDLE or state = S_END then
                         -- the channel's transfer ended before the item was taken: a received
                         -- frame is then not for a transfer; nothing is written back
                         if ev = EV_RX then
@@ -1755,6 +1819,12 @@ begin
                 wd_q <= '1';
             end if;
 
+            -- every end or abort of the transfer withdraws its request still waiting in TXB1
+            -- (not an end after the abort frame: that withdraw was done before the frame)
+            if do_abort or (do_end and state_ld /= S_ABORT_TX) then
+                wdr_new_q <= '1';
+            end if;
+
             if do_end then
                 state   <= S_IDLE;
                 done_q  <= '1';
@@ -1793,10 +1863,14 @@ begin
     rx_reply_o      <= rx_reply_q;
     rx_unexpected_o <= rx_unexp_q or nohit_pipe(1);
 
-    tx_req_o  <= tx_full;
-    tx_id_o   <= run_req(tx_ch);
-    tx_dlc_o  <= sdo_dlc_c;
-    tx_data_o <= frm_rdata;
+    tx_req_o   <= tx_full;
+    tx_abort_o <= '1' when ch_state(tx_ch) = S_ABORT_TX else
+                  '0';
+    wdr_req_o  <= wdr_cur;
+    wdr_id_o   <= run_req(wdr_ch);
+    tx_id_o    <= run_req(tx_ch);
+    tx_dlc_o   <= sdo_dlc_c;
+    tx_data_o  <= frm_rdata;
 
     -- ---------------------------------------------------------------------------------------------
     -- Abort counting: one strobe per aborted transfer, none lost when two end together

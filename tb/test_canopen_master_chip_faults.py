@@ -430,6 +430,111 @@ async def run_rx_kept_while_sdo_reply_waits(dut):
     await Timer(1, "ns")
 
 
+#: DONE of a transfer ended by a server abort while its request waits in TXB1, after the end of
+#: the abort frame: St6, the cancel (BIT MODIFY TXB1CTRL, READ STATUS one longest frame of 192
+#: bits later, 192 us at 1 Mbit/s), the withdraw acknowledge and the driver's DONE poll
+SRV_ABORT_DONE_US = 500
+
+
+async def sdo_upload_outcome(tb: SystemTB, node: int, timeout_ms: int, chan: int = 0):
+    """The transfer's exception (None on success) and the time its DONE was seen."""
+    try:
+        await tb.host.sdo_upload(node, 0x1000, 0, timeout_ms=timeout_ms, chan=chan)
+    except Exception as e:  # noqa: BLE001 - the outcome is checked by the caller
+        return e, sim_time_ps()
+    return None, sim_time_ps()
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_sdo_request_withdrawn_after_server_abort(dut):
+    """Purpose: a transfer ended by a server abort leaves no request behind (fuzz finding 3).
+
+    Verifies: the upload request 40h to node 2 waits in TXB1 under a flood of 0-byte frames
+    (id 110h wins every arbitration); a forged server abort 582h (multiplexer 1000h:0, code
+    0602 0000h) ends the transfer. canopen_sdo_channels asks the core to withdraw the request;
+    the core cancels TXB1 and only then is DONE set: no frame 602h at all reaches the bus (the
+    request was cancelled, a server abort needs no client frame), DONE within
+    SRV_ABORT_DONE_US after the abort frame, result 0602 0000h not sent by the client,
+    CNT_SDO_ABORT + 1, nothing of the flood lost.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    cnt0 = await tb.host.counters()
+    t0 = sim_time_ps()
+    tb.raw.send(*flood(96, FLOOD_ID_SDO))
+    xfer = cocotb.start_soon(sdo_upload_outcome(tb, 2, 100))
+    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
+                      "SDO request in TXB1")
+    forged = can.Message(arbitration_id=0x582, is_extended_id=False,
+                         data=bytes([0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x02, 0x06]))
+    tb.raw.queue.insert(2, forged)
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    await Timer(1_000, "us")
+    exc, t_done = await xfer
+    assert isinstance(exc, SdoAbort), f"the transfer ended with {exc!r}"
+    assert exc.code == 0x06020000 and not exc.sent_by_client, exc
+    sdo = [r for r in tb.frames(0x602) if r.t_start_ps >= t0]
+    assert not sdo, f"a request of the ended transfer went on the bus: {sdo}"
+    rsp = [r for r in tb.frames(0x582) if r.t_start_ps >= t0]
+    assert [r.msg.data[0] for r in rsp] == [0x80], f"frames 582h: {rsp}"
+    done_us = (t_done - rsp[0].t_end_ps) / PS_PER_US
+    dut._log.info("DONE %.1f us after the server abort's end", done_us)
+    assert 0 < done_us <= SRV_ABORT_DONE_US, f"DONE {done_us:.1f} us after the server abort"
+    cnt = await tb.host.counters()
+    assert cnt["sdo_abort"] - cnt0["sdo_abort"] == 1, (cnt0, cnt)
+    await check_flood_received(tb, t0, cnt0)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_sdo_request_withdrawn_after_timeout(dut):
+    """Purpose: a transfer ended by its timeout leaves no request behind (fuzz finding 3).
+
+    Verifies: channel 0 uploads from node 2 (timeout 2 ms); its request waits in TXB1 under a
+    flood of 0-byte frames (id 110h, 7.5 ms). Channel 1 then uploads from node 1 (timeout
+    50 ms): its request is presented to the FSM and waits for TXB1 too, so channel 0's abort
+    frame (0504 0000h, decided at the timeout) is not presented and times out as well. Before
+    the fix the transfer then ended (DONE) with its request still in TXB1, which went on the
+    bus after the flood. Now the abort decision withdraws the request (TXB1 cancelled), and
+    DONE comes at the abort frame's own timeout: no frame 602h after DONE (none at all here),
+    DONE within 2 x (timeout + 1) ms of the start + 1 ms, result 0504 0000h sent by the client,
+    CNT_SDO_ABORT + 1; channel 1's transfer succeeds after the flood.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    # channel 1 waits for the whole flood: the driver's DONE poll budget must cover it
+    tb.host.max_polls = 100_000
+    cnt0 = await tb.host.counters()
+    t0 = sim_time_ps()
+    tb.raw.send(*flood(160, FLOOD_ID_SDO))
+    xfer0 = cocotb.start_soon(sdo_upload_outcome(tb, 2, 2, chan=0))
+    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
+                      "SDO request in TXB1")
+    t_start = sim_time_ps()
+    xfer1 = cocotb.start_soon(sdo_upload_outcome(tb, 1, 50, chan=1))
+    exc0, t_done0 = await xfer0
+    assert tb.raw.queue, "the flood ended before channel 0's transfer"
+    assert isinstance(exc0, SdoAbort), f"channel 0 ended with {exc0!r}"
+    assert exc0.code == 0x05040000 and exc0.sent_by_client, exc0
+    done_ms = (t_done0 - t_start) / PS_PER_US / 1000
+    dut._log.info("channel 0 DONE %.3f ms after its request was in TXB1", done_ms)
+    assert done_ms <= 2 * (2 + 1) + 1, f"DONE {done_ms:.3f} ms after the start"
+    await tb.wait_for(lambda: not tb.raw.queue, 20_000, 20, "flood sent")
+    exc1, _ = await xfer1
+    assert exc1 is None, f"channel 1 ended with {exc1!r}"
+    await Timer(1_000, "us")
+    late = [r for r in tb.frames(0x602) if r.t_start_ps >= t_done0]
+    assert not late, f"a frame of channel 0's ended transfer went on the bus after DONE: {late}"
+    # the request was cancelled in TXB1 and the abort frame never taken: no frame 602h at all
+    sdo = [r for r in tb.frames(0x602) if r.t_start_ps >= t0]
+    assert not sdo, f"frames 602h of channel 0's transfer: {sdo}"
+    cnt = await tb.host.counters()
+    assert cnt["sdo_abort"] - cnt0["sdo_abort"] == 1, (cnt0, cnt)
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
 @cocotb.test(timeout_time=100, timeout_unit="ms")
 async def run_rx_kept_while_sync_waits(dut):
     """Purpose: the master keeps receiving while the SYNC it fired waits for the bus.

@@ -208,6 +208,9 @@ class TB:
                     dut.own_buf_we_i, dut.own_buf_data_i):
             sig.value = 0
         dut.enable_i.value = 1
+        # no TX buffer here (a taken frame is on the bus): the withdraw of an ended transfer's
+        # request is acknowledged at once, as the core does when TXB1 holds no such request
+        dut.wdr_ack_i.value = 1
         cocotb.start_soon(self._ticker())
         cocotb.start_soon(self._tx_taker())
         cocotb.start_soon(self._rx_feeder())
