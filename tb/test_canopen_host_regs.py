@@ -8,7 +8,8 @@ port; a model of the PDO engine's register port (registered read data) on the ``
 a small SDO client model answers ``sdo_req_o`` with busy/done/abort. Checkers that run in every
 test:
 
-* Avalon: ``avs_readdatavalid_o`` is high exactly one cycle after each ``avs_read_i`` cycle;
+* Avalon: ``avs_readdatavalid_o`` is high exactly two cycles after each ``avs_read_i`` cycle
+  (registered inputs, registered read data: read latency 2);
 * strobes: every pulse output is high for one cycle at a time; each pulse is logged with the
   fields it carries so tests compare them with what was written.
 
@@ -195,10 +196,12 @@ class TB:
         """Count cycles, check the read latency and log strobes (values of the ended cycle)."""
         dut = self.dut
         last_high: dict[str, int] = {}
+        prev_read = 0  # avs_read_i sampled at the previous edge
         while True:
             await RisingEdge(dut.clk_i)
             self.cycle += 1
             if dut.rst_n_i.value != 1:
+                prev_read = 0
                 continue
             read = dut.avs_read_i.value
             for name, fields in STROBES.items():
@@ -211,10 +214,10 @@ class TB:
                     self.pulses.append((self.cycle, name, int(v), snap))
             await ReadOnly()
             valid = dut.avs_readdatavalid_o.value
-            expected = int(read) if read.is_resolvable else 0
-            assert int(valid) == expected, (
-                f"avs_readdatavalid_o = {valid} one cycle after avs_read_i = {read} "
-                f"(cycle {self.cycle}): read latency must be exactly 1")
+            assert int(valid) == prev_read, (
+                f"avs_readdatavalid_o = {valid} two cycles after avs_read_i = {prev_read} "
+                f"(cycle {self.cycle}): read latency must be exactly 2")
+            prev_read = int(read) if read.is_resolvable else 0
 
     async def _ram_model(self) -> None:
         """Synchronous RAM: address/write sampled at the edge, read data registered."""
@@ -302,8 +305,9 @@ class TB:
 
     # ------------------------------------------------------------------ actions
     async def settle(self) -> None:
-        """Two clock edges: strobes and RAM writes of the last bus access are logged."""
-        await ClockCycles(self.dut.clk_i, 2)
+        """Three clock edges: strobes and RAM writes of the last bus access are logged (the
+        block registers the Avalon request first)."""
+        await ClockCycles(self.dut.clk_i, 3)
 
     async def reset(self) -> None:
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
@@ -367,18 +371,20 @@ class TB:
 
     async def raw_write(self, addr: int, data: int, byteenable: int = 0xF,
                         with_input: str | None = None) -> None:
-        """A write driven pin by pin, ``with_input`` high in the very cycle it is sampled."""
+        """A write driven pin by pin, ``with_input`` high in the very cycle the write acts (the
+        cycle after the bus cycle: the block registers the Avalon request first)."""
         dut = self.dut
         await FallingEdge(dut.clk_i)
         dut.avs_address_i.value = addr
         dut.avs_writedata_i.value = data
         dut.avs_byteenable_i.value = byteenable
         dut.avs_write_i.value = 1
-        if with_input:
-            getattr(dut, with_input).value = 1
         await FallingEdge(dut.clk_i)
         dut.avs_write_i.value = 0
         dut.avs_byteenable_i.value = 0
+        if with_input:
+            getattr(dut, with_input).value = 1
+        await FallingEdge(dut.clk_i)
         if with_input:
             getattr(dut, with_input).value = 0
 
@@ -490,6 +496,7 @@ async def run_irq_w1c_and_masking(dut):
         await host.irq_enable(IRQ_ALL & ~bit)
         assert dut.irq_o.value == 0
         await host.irq_enable(name)
+        await RisingEdge(dut.clk_i)  # the write takes effect one cycle after the bus cycle
         await ReadOnly()
         assert dut.irq_o.value == 1, f"{name}: irq_o low while enabled and pending"
         await host.irq_clear(IRQ_ALL & ~bit)  # other bits: nothing to clear
@@ -760,18 +767,24 @@ async def run_sdo_channel_select(dut):
     if n > 1:
         await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=0))
         assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
-    # ACFG_FAIL_SEL: combinational in the write cycle, registered afterwards
+    # ACFG_FAIL_SEL: combinational in the cycle the registered write acts (the cycle after the
+    # bus write cycle), registered afterwards
     seen = []
 
     async def watch() -> None:
+        prev = False
         while True:
-            await FallingEdge(dut.clk_i)  # the middle of the write cycle
-            if dut.avs_write_i.value == 1 and int(dut.avs_address_i.value) == R.REG_ACFG_FAIL_SEL:
+            await FallingEdge(dut.clk_i)  # the middle of a cycle
+            if prev:
                 seen.append(int(dut.acfg_fail_sel_o.value))
+            prev = (dut.avs_write_i.value == 1
+                    and int(dut.avs_address_i.value) == R.REG_ACFG_FAIL_SEL)
 
     task = cocotb.start_soon(watch())
     for k in (5, 0, 15):
         await host.write("ACFG_FAIL_SEL", k)
+        await RisingEdge(dut.clk_i)
+        await ReadOnly()
         assert seen[-1] == k and int(dut.acfg_fail_sel_o.value) == k
     task.cancel()
 
