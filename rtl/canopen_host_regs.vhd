@@ -144,12 +144,14 @@ entity canopen_host_regs is
         rec_i         : in    std_logic_vector(7 downto 0);  -- receive error counter
         eflg_i        : in    std_logic_vector(7 downto 0);  -- MCP2510 EFLG
         -- node supervision status, slot k in bits (k+1)*w-1 .. k*w
-        node_nmt_i    : in    std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- NMT state
-        node_alive_i  : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- alive
-        node_lost_i   : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: lost
-        node_toggle_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: toggle
-        node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: boot-up
-        node_last_i   : in    std_logic_vector(32 * MAX_NODES - 1 downto 0); -- last msg [ms]
+        node_alive_i  : in    std_logic_vector(MAX_NODES - 1 downto 0); -- alive
+        node_lost_i   : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: lost
+        node_toggle_i : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: toggle
+        node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: boot-up
+        -- node status RAM of canopen_node_monitor: slot to read, its data one cycle later
+        node_st_slot_o : out   std_logic_vector(4 downto 0);  -- slot of NODE_STATUS/LAST_MS
+        node_st_nmt_i  : in    std_logic_vector(6 downto 0);  -- its NMT state (+1 cycle)
+        node_st_last_i : in    std_logic_vector(31 downto 0); -- its last message [ms] (+1)
         -- EMCY FIFO status (head)
         emcy_count_i : in    std_logic_vector(6 downto 0);  -- messages in the FIFO
         emcy_lost_i  : in    std_logic;                     -- sticky: a message was lost
@@ -396,6 +398,14 @@ architecture rtl of canopen_host_regs is
     signal cnt_raddr : std_logic_vector(3 downto 0);
     signal cnt_sel   : std_logic;
     signal cnt_rdata : std_logic_vector(CNT_BITS - 1 downto 0);
+    -- node status RAM read: offset from NODE_CFG(0), the address is NODE_STATUS / NODE_LAST_MS
+    -- of a slot < MAX_NODES, and registered: such a read is selected
+    signal nst_off   : unsigned(7 downto 0);
+    signal nst_sel   : std_logic;
+    signal nlast_sel : std_logic;
+    signal rd_nst    : std_logic;
+    signal rd_nlast  : std_logic;
+    signal nst_nmt   : std_logic_vector(6 downto 0);
 
     -- registered read data: multiplexer output, its register, SDO_BUF selected, valid
     signal rd_mux   : std_logic_vector(31 downto 0);
@@ -445,7 +455,7 @@ begin
         be_bits(8 * b + 7 downto 8 * b) <= (others => av_be(b));
     end generate be_bits_gen;
 
-    wr_ones  <= av_wd and be_bits;
+    wr_ones <= av_wd and be_bits;
 
     sdo_sel <= to_integer(unsigned(sdo_chan));
 
@@ -559,7 +569,7 @@ begin
                 -- CiA 301 1019h: 0 or 2..240; no change while the SYNC producer runs
                 if is_off(av_addr, REG_SYNC_OVERFLOW_C) then
                     if sync_ovf_ok(mrg(sync_overflow, av_wd, be_bits, SYNC_OVERFLOW_VALUE_HI_C,
-                                         SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
+                                       SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
                                    sync_en = '1' and unsigned(sync_period) /= 0) then
                         sync_overflow <= mrg(sync_overflow, av_wd, be_bits,
                                              SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C);
@@ -590,7 +600,7 @@ begin
                 -- a channel number the core does not have is ignored
                 if is_off(av_addr, REG_SDO_SEL_C)
                    and to_integer(unsigned(mrg(sdo_chan, av_wd, be_bits, SDO_SEL_CHAN_HI_C,
-                                                    SDO_SEL_CHAN_LO_C))) < N_SDO then
+                                                  SDO_SEL_CHAN_LO_C))) < N_SDO then
                     sdo_chan <= mrg(sdo_chan, av_wd, be_bits, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C);
                 end if;
                 if is_off(av_addr, REG_ACFG_FAIL_SEL_C) then
@@ -707,6 +717,19 @@ begin
                & '0' & cnt_malformed_i & '0' & cnt_unexpected_i & '0' & cnt_tx_frame_i
                & '0' & cnt_rx_frame_i;
 
+    -- ---------------------------------------------------------------------------------------------
+    -- Node status RAM read port (canopen_node_monitor): the slot of the addressed NODE_STATUS /
+    -- NODE_LAST_MS in the act cycle, the RAM's registered data selected in the next
+    -- ---------------------------------------------------------------------------------------------
+    nst_off        <= unsigned(av_addr) - REG_NODE_CFG_C;
+    node_st_slot_o <= '0' & std_logic_vector(nst_off(5 downto 2));
+    nst_sel        <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                               and nst_off(1 downto 0) = REG_NODE_STATUS_C - REG_NODE_CFG_C else
+                      '0';
+    nlast_sel      <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                               and nst_off(1 downto 0) = REG_NODE_LAST_MS_C - REG_NODE_CFG_C else
+                      '0';
+
     cnt_off   <= unsigned(av_addr) - REG_CNT_RX_FRAMES_C;
     cnt_raddr <= std_logic_vector(cnt_off(3 downto 0));
     cnt_sel   <= '1' when cnt_off < cnt_num_c else
@@ -737,8 +760,8 @@ begin
                              ctrl_busy_i, eflg_i, emcy_count_i, emcy_data_i, emcy_lost_i,
                              emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
                              init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
-                             node_alive_i, node_autostart, node_bootup_i, node_id, node_last_i,
-                             node_life, node_lost_i, node_mode, node_nmt_i, node_rst_loss,
+                             node_alive_i, node_autostart, node_bootup_i, node_id,
+                             node_life, node_lost_i, node_mode, node_rst_loss,
                              node_time, node_toggle_i, omni_en, ovf_refused, rec_i,
                              sdo_abort_code_i, sdo_abort_sent_i, sdo_busy_i, sdo_chan,
                              sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
@@ -801,14 +824,12 @@ begin
             put(REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
                 at(node_time(k), NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C)
                 or at(node_life(k), NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C));
+            -- NMT_STATE and NODE_LAST_MS: the status RAM's data, selected after the read
             put(REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
-                at(node_nmt_i(7 * k + 6 downto 7 * k),
-                      NODE_STATUS_NMT_STATE_HI_C, NODE_STATUS_NMT_STATE_LO_C)
-                or at(node_alive_i(k), NODE_STATUS_ALIVE_C)
+                at(node_alive_i(k), NODE_STATUS_ALIVE_C)
                 or at(node_lost_i(k), NODE_STATUS_LOST_C)
                 or at(node_toggle_i(k), NODE_STATUS_TOGGLE_ERR_C)
                 or at(node_bootup_i(k), NODE_STATUS_BOOTUP_C));
-            put(REG_NODE_LAST_MS_C + k * REG_NODE_STRIDE_C, node_last_i(32 * k + 31 downto 32 * k));
 
         end loop;
 
@@ -886,12 +907,16 @@ begin
             rd_buf   <= '0';
             rd_pdo   <= '0';
             rd_cnt   <= '0';
+            rd_nst   <= '0';
+            rd_nlast <= '0';
         elsif rising_edge(clk_i) then
             rd_valid <= av_rd;
             if av_rd = '1' then
-                rd_buf <= buf_sel;
-                rd_pdo <= pdo_sel;
-                rd_cnt <= cnt_sel;
+                rd_buf   <= buf_sel;
+                rd_pdo   <= pdo_sel;
+                rd_cnt   <= cnt_sel;
+                rd_nst   <= nst_sel;
+                rd_nlast <= nlast_sel;
             end if;
         end if;
 
@@ -900,7 +925,11 @@ begin
     avs_readdata_o      <= sdo_buf_rdata_i when rd_buf = '1' else
                            pdo_rdata_i when rd_pdo = '1' else
                            std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
-                           rd_data;
+                           node_st_last_i when rd_nlast = '1' else
+                           rd_data or at(nst_nmt, NODE_STATUS_NMT_STATE_HI_C,
+                                            NODE_STATUS_NMT_STATE_LO_C);
+    nst_nmt             <= node_st_nmt_i when rd_nst = '1' else
+                           (others => '0');
     avs_readdatavalid_o <= rd_valid;
 
     irq_o <= '1' when (irq_status and irq_enable) /= (irq_status'range => '0') else
@@ -950,7 +979,7 @@ begin
     -- the failure log's read address follows a write at once, so a read in the next cycle
     -- already shows the selected failure (the log RAM registers its read data)
     acfg_fail_sel_o    <= mrg(acfg_fail_sel, av_wd, be_bits,
-                              ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C)
+                                 ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C)
                           when av_wr = '1'
                                and is_off(av_addr, REG_ACFG_FAIL_SEL_C) else
                           acfg_fail_sel;

@@ -1031,7 +1031,8 @@ def gen_markdown() -> str:
           "`canopen_host_regs` passes",
           "every access through (`pdo_addr_o` = word offset, `pdo_we_o`, `pdo_wdata_o`; "
           "`pdo_rdata_i` one cycle",
-          "after the port address, the same read latency as every register); like `SDO_BUF`, a write with",
+          "after the port address, the same read latency as every register); like `SDO_BUF`, "
+          "a write with",
           "`avs_byteenable_i` /= 1111 is ignored. The registers below are implemented by",
           "[`canopen_pdo_engine`](canopen_pdo_engine.md); offsets of the window not listed read "
           "0 and ignore",

@@ -50,6 +50,9 @@ STATUS_INPUTS = {
 }
 SLOT_INPUTS = {"node_nmt_i": 7, "node_alive_i": 1, "node_lost_i": 1, "node_toggle_i": 1,
                "node_bootup_i": 1, "node_last_i": 32}
+#: slot values the block reads through the node monitor's status RAM port (node_st_slot_o ->
+#: node_st_nmt_i / node_st_last_i one cycle later), held flat by the bench's model of that port
+RAM_SLOT_INPUTS = {"node_nmt_i": "node_st_nmt_i", "node_last_i": "node_st_last_i"}
 EVENTS = {"NODE": "ev_node_i", "EMCY": "ev_emcy_i", "SDO_DONE": "ev_sdo_done_i",
           "CAN_ERROR": "ev_can_error_i", "SYNC": "ev_sync_i", "FRAME_ERROR": "ev_frame_error_i",
           "INIT": "ev_init_i", "CONFIG": "ev_acfg_done_i"}
@@ -166,7 +169,8 @@ class TB:
         for name in ("avs_read_i", "avs_write_i", "avs_writedata_i", "avs_byteenable_i",
                      "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", "sdo_start_i",
                      *STATUS_INPUTS,
-                     *SLOT_INPUTS,
+                     *(n for n in SLOT_INPUTS if n not in RAM_SLOT_INPUTS),
+                     *RAM_SLOT_INPUTS.values(),
                      *EVENTS.values(), *COUNT_INPUTS.values()):
             getattr(dut, name).value = 0
         self.host = CanopenMasterHost(dut, dut.clk_i, max_polls=200, poll_cycles=4)
@@ -187,7 +191,10 @@ class TB:
         #: the client model refuses every request (sdo_refused_i, no sdo_start_i) while set
         self.sdo_refuse = False
         cocotb.start_soon(self._cycle_monitor())
+        #: the node monitor's status RAM (flat values, slot k in bits w(k+1)-1..wk)
+        self.node_ram = {n: 0 for n in RAM_SLOT_INPUTS}
         cocotb.start_soon(self._ram_model())
+        cocotb.start_soon(self._node_status_model())
         cocotb.start_soon(self._pdo_model())
         cocotb.start_soon(self._sdo_client())
 
@@ -235,6 +242,28 @@ class TB:
             while len(pipe) > 1 + self.ram_extra_latency:
                 pipe.pop(0)
             dut.sdo_buf_rdata_i.value = pipe[0]
+
+    async def _node_status_model(self) -> None:
+        """Node monitor's status RAM port: slot sampled at the edge, its data registered."""
+        dut = self.dut
+        while True:
+            await RisingEdge(dut.clk_i)
+            slot = dut.node_st_slot_o.value
+            if not slot.is_resolvable:
+                continue
+            k = int(slot)
+            for name, port in RAM_SLOT_INPUTS.items():
+                w = SLOT_INPUTS[name]
+                flat = self.node_ram[name] if k < self.max_nodes else 0
+                word = (flat >> (w * k)) & ((1 << w) - 1)
+                getattr(dut, port).value = word
+
+    def set_input(self, name: str, value: int) -> None:
+        """Drive a status input (or the status RAM model's flat value)."""
+        if name in RAM_SLOT_INPUTS:
+            self.node_ram[name] = value
+        else:
+            getattr(self.dut, name).value = value
 
     async def _pdo_model(self) -> None:
         """PDO engine register port: write at the edge, read data registered (offset ->
@@ -457,7 +486,7 @@ async def run_ro_inputs_visible(dut):
         values = {n: random.getrandbits(tb.input_width(n)) for n in (*STATUS_INPUTS, *SLOT_INPUTS)}
         await FallingEdge(dut.clk_i)
         for n, v in values.items():
-            getattr(dut, n).value = v
+            tb.set_input(n, v)
         regs = {reg for reg, _ in RO_SOURCES}
         for reg in sorted(regs):
             info = R.REGISTERS[reg]

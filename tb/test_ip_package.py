@@ -13,7 +13,8 @@ this file. It parses the ``_hw.tcl`` with regular expressions and compares it wi
 * the QUARTUS_SYNTH and SIM_VHDL filesets list exactly ``rtl/files.f``, in order, with the top
   level ``canopen_master_top``;
 * the Avalon-MM slave's address width equals ``avs_address_i``'s, it uses word addressing, fixed
-  read latency 2 (registered inputs and read data) and no waitrequest/readdatavalid; the data width matches the byte enables;
+  read latency 2 (registered inputs and read data) and no waitrequest/readdatavalid; the data
+  width matches the byte enables;
 * every ``associatedClock``/``associatedReset``/``associatedAddressablePoint`` names an interface
   of the right type.
 
@@ -343,7 +344,8 @@ def fileset_problems(comp: Component, order: list[Path]) -> list[str]:
 
 def avalon_problems(comp: Component, ports: list[Port]) -> list[str]:
     """The Avalon-MM slave: address width = avs_address_i, word addressing, fixed read latency
-    2 (registered inputs, registered read data; no waitrequest and no variable latency), 32-bit data with 4 byte enables."""
+    2 (registered inputs, registered read data; no waitrequest and no variable latency), 32-bit
+    data with 4 byte enables."""
     slaves = [n for n, (kind, d) in comp.interfaces.items() if kind == "avalon" and d == "end"]
     if len(slaves) != 1:
         return [f"expected exactly one Avalon-MM slave (avalon end), found {slaves}"]
