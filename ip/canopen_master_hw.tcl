@@ -15,7 +15,7 @@
 #   reset    reset sink       rst_n_i (active low; asynchronous assertion, synchronised release
 #                             inside the core, so no synchronisation is required from the fabric)
 #   s0       Avalon-MM slave  32-bit data, 8-bit WORD address (256 words = 1 KiB), fixed read
-#                             latency 1, no waitrequest (never stalls), no bursts
+#                             latency 2, no waitrequest (never stalls), no bursts
 #   irq      interrupt sender irq_o, level high, serviced through s0
 #   mcp2510  conduit          SPI and MCP2510 pins (export it)
 #   debug    conduit          FSM states and avs_readdatavalid_o (may be left unconnected)
@@ -324,9 +324,12 @@ add_interface_port reset rst_n_i reset_n Input 1
 
 # -------------------------------------------------------------------------------------------------
 # Interface: s0 (Avalon-MM slave). Word addressing (address = register number), 32-bit words.
-# Reads: the read is accepted in the cycle read is high and readdata is valid exactly one cycle
-# later, for every address -> fixed latency: readLatency 1, readWaitTime 0. Writes take effect in
-# the cycle write is high -> writeWaitTime 0. No waitrequest (the slave never stalls).
+# Every Avalon input ends in a flip-flop (address, read, write, writedata, byteenable), and the
+# read data comes from registers. Reads: the read is accepted in the cycle read is high and
+# readdata is valid exactly two cycles later, for every address -> fixed latency: readLatency 2,
+# readWaitTime 0; reads may follow each other in every cycle. Writes are accepted in the cycle
+# write is high (they act one cycle later, in order with the reads) -> writeWaitTime 0. No
+# waitrequest (the slave never stalls: nothing in it can refuse or delay an access).
 # avs_readdatavalid_o is NOT mapped here: a slave with readdatavalid is "pipelined with variable
 # latency", which the Avalon specification pairs with waitrequest; it is on the debug conduit.
 # -------------------------------------------------------------------------------------------------
@@ -341,7 +344,7 @@ set_interface_property s0 explicitAddressSpan            0
 set_interface_property s0 holdTime                       0
 set_interface_property s0 linewrapBursts                 false
 set_interface_property s0 maximumPendingReadTransactions 0
-set_interface_property s0 readLatency                    1
+set_interface_property s0 readLatency                    2
 set_interface_property s0 readWaitTime                   0
 set_interface_property s0 setupTime                      0
 set_interface_property s0 timingUnits                    Cycles

@@ -4,8 +4,8 @@
 -- SPDX-License-Identifier: Apache-2.0
 -- =================================================================================================
 -- Module:
---   Host register block: Avalon-MM slave (32-bit data, word addresses, fixed read latency 1,
---   no waitrequest) and level-high interrupt sender.
+--   Host register block: Avalon-MM slave (32-bit data, word addresses, registered inputs,
+--   fixed read latency 2, no waitrequest) and level-high interrupt sender.
 -- Purpose:
 --   The software view of the CANopen master (map: docs/register_map.md, generated with
 --   canopen_regs_pkg by scripts/regmap.py). It holds the configuration registers (SYNC, node
@@ -20,10 +20,15 @@
 --     SYNC producer runs (CiA 301 1019h); a refused write keeps the value and sets
 --     SYNC_OVERFLOW.REFUSED until the next accepted write. NMT and SDO commands are checked
 --     where they are executed (canopen_master_core, canopen_sdo_channels).
+--   * Avalon inputs: address, read, write, writedata and byteenable are registered at the
+--     port (av_*); everything below works on the registered request, one cycle after the bus
+--     cycle (writes act then, in order with the reads).
 --   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
---     avs_read_i by exactly one cycle for every address. SDO_BUF reads drive sdo_buf_addr_o in
---     the read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in the next one.
---     PDO_WIN reads likewise: pdo_addr_o in the read cycle, pdo_rdata_i selected in the next.
+--     avs_read_i by exactly two cycles for every address. SDO_BUF reads drive sdo_buf_addr_o
+--     in the registered read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in
+--     the next one. PDO_WIN reads likewise: pdo_addr_o, then pdo_rdata_i selected.
+--   * RW registers merge a partial write with their own value (per bit: the byte enable
+--     chooses, which synthesis maps to the flip-flop enable), not with the read multiplexer.
 --   * Byte enables: honoured by RW registers (only enabled bytes change) and by W1C/pulse bits
 --     (bits in disabled bytes count as 0). Command registers (NMT_CMD, SDO_CMD, EMCY_POP) act
 --     on any write and take every field from avs_writedata_i. The SDO_BUF port has no byte
@@ -139,12 +144,14 @@ entity canopen_host_regs is
         rec_i         : in    std_logic_vector(7 downto 0);  -- receive error counter
         eflg_i        : in    std_logic_vector(7 downto 0);  -- MCP2510 EFLG
         -- node supervision status, slot k in bits (k+1)*w-1 .. k*w
-        node_nmt_i    : in    std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- NMT state
-        node_alive_i  : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- alive
-        node_lost_i   : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: lost
-        node_toggle_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: toggle
-        node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: boot-up
-        node_last_i   : in    std_logic_vector(32 * MAX_NODES - 1 downto 0); -- last msg [ms]
+        node_alive_i  : in    std_logic_vector(MAX_NODES - 1 downto 0); -- alive
+        node_lost_i   : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: lost
+        node_toggle_i : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: toggle
+        node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: boot-up
+        -- node status RAM of canopen_node_monitor: slot to read, its data one cycle later
+        node_st_slot_o : out   std_logic_vector(4 downto 0);  -- slot of NODE_STATUS/LAST_MS
+        node_st_nmt_i  : in    std_logic_vector(6 downto 0);  -- its NMT state (+1 cycle)
+        node_st_last_i : in    std_logic_vector(31 downto 0); -- its last message [ms] (+1)
         -- EMCY FIFO status (head)
         emcy_count_i : in    std_logic_vector(6 downto 0);  -- messages in the FIFO
         emcy_lost_i  : in    std_logic;                     -- sticky: a message was lost
@@ -272,16 +279,61 @@ architecture rtl of canopen_host_regs is
 
     end function acfg_entry_ok;
 
+    -- a write into the field hi..lo of an RW register: the enabled bytes from the write data,
+    -- the others from the register itself (not through the read multiplexer)
+
+    function mrg (old : std_logic_vector; wd, be : std_logic_vector(31 downto 0);
+        hi, lo : natural) return std_logic_vector is
+
+        variable r : std_logic_vector(hi - lo downto 0);
+        variable o : std_logic_vector(hi - lo downto 0);
+
+    begin
+
+        o := old;
+
+        -- a 2:1 choice per bit (not AND-OR): synthesis turns it into the flip-flop's enable
+        for i in 0 to hi - lo loop
+
+            if be(lo + i) = '1' then
+                r(i) := wd(lo + i);
+            else
+                r(i) := o(i);
+            end if;
+
+        end loop;
+
+        return r;
+
+    end function mrg;
+
+    function mrg_bit (old : std_logic; wd, be : std_logic_vector(31 downto 0);
+        pos : natural) return std_logic is
+    begin
+
+        if be(pos) = '1' then
+            return wd(pos);
+        end if;
+
+        return old;
+
+    end function mrg_bit;
+
     -- ---------------------------------------------------------------------------------------------
     -- Signals
     -- ---------------------------------------------------------------------------------------------
+
+    -- the Avalon request, registered at the port: address, read, write, data, byte enables
+    signal av_addr : std_logic_vector(7 downto 0);
+    signal av_rd   : std_logic;
+    signal av_wr   : std_logic;
+    signal av_wd   : std_logic_vector(31 downto 0);
+    signal av_be   : std_logic_vector(3 downto 0);
 
     -- byte enables expanded to bits
     signal be_bits : std_logic_vector(31 downto 0);
     -- W1C and pulse bits: the write data with disabled bytes forced to 0
     signal wr_ones : std_logic_vector(31 downto 0);
-    -- RW registers: the addressed register's word with the enabled bytes replaced
-    signal wr_merge : std_logic_vector(31 downto 0);
     -- the bus address is inside the SDO_BUF window
     signal buf_sel : std_logic;
     -- the bus address is inside the PDO_WIN window
@@ -346,6 +398,14 @@ architecture rtl of canopen_host_regs is
     signal cnt_raddr : std_logic_vector(3 downto 0);
     signal cnt_sel   : std_logic;
     signal cnt_rdata : std_logic_vector(CNT_BITS - 1 downto 0);
+    -- node status RAM read: offset from NODE_CFG(0), the address is NODE_STATUS / NODE_LAST_MS
+    -- of a slot < MAX_NODES, and registered: such a read is selected
+    signal nst_off   : unsigned(7 downto 0);
+    signal nst_sel   : std_logic;
+    signal nlast_sel : std_logic;
+    signal rd_nst    : std_logic;
+    signal rd_nlast  : std_logic;
+    signal nst_nmt   : std_logic_vector(6 downto 0);
 
     -- registered read data: multiplexer output, its register, SDO_BUF selected, valid
     signal rd_mux   : std_logic_vector(31 downto 0);
@@ -360,24 +420,51 @@ architecture rtl of canopen_host_regs is
 begin
 
     -- ---------------------------------------------------------------------------------------------
+    -- Avalon input registers: every Avalon input ends in a flip-flop (read latency 2)
+    -- ---------------------------------------------------------------------------------------------
+    av_ctrl_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            av_rd <= '0';
+            av_wr <= '0';
+        elsif rising_edge(clk_i) then
+            av_rd <= avs_read_i;
+            av_wr <= avs_write_i;
+        end if;
+
+    end process av_ctrl_proc;
+
+    -- datapath, qualified by av_rd / av_wr (no reset)
+    av_data_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            av_addr <= avs_address_i;
+            av_wd   <= avs_writedata_i;
+            av_be   <= avs_byteenable_i;
+        end if;
+
+    end process av_data_proc;
+
+    -- ---------------------------------------------------------------------------------------------
     -- Write data qualification
     -- ---------------------------------------------------------------------------------------------
 
     be_bits_gen : for b in 0 to 3 generate
-        be_bits(8 * b + 7 downto 8 * b) <= (others => avs_byteenable_i(b));
+        be_bits(8 * b + 7 downto 8 * b) <= (others => av_be(b));
     end generate be_bits_gen;
 
-    wr_ones  <= avs_writedata_i and be_bits;
-    wr_merge <= wr_ones or (rd_mux and not be_bits);
+    wr_ones <= av_wd and be_bits;
 
     sdo_sel <= to_integer(unsigned(sdo_chan));
 
-    buf_sel <= '1' when is_off(avs_address_i(7 downto buf_bits_c), buf_win_c) else
+    buf_sel <= '1' when is_off(av_addr(7 downto buf_bits_c), buf_win_c) else
                '0';
-    pdo_sel <= '1' when is_off(avs_address_i(7 downto pdo_bits_c), pdo_win_c) else
+    pdo_sel <= '1' when is_off(av_addr(7 downto pdo_bits_c), pdo_win_c) else
                '0';
 
-    cnt_clear <= '1' when avs_write_i = '1' and is_off(avs_address_i, REG_CTRL_C)
+    cnt_clear <= '1' when av_wr = '1' and is_off(av_addr, REG_CTRL_C)
                           and wr_ones(CTRL_CLR_COUNTERS_C) = '1' else
                  '0';
 
@@ -450,7 +537,7 @@ begin
             ev_v(IRQ_STATUS_FRAME_ERROR_C) := ev_frame_error_i;
             ev_v(IRQ_STATUS_INIT_C)        := ev_init_i;
             ev_v(IRQ_STATUS_CONFIG_C)      := ev_acfg_done_i;
-            if avs_write_i = '1' and is_off(avs_address_i, REG_IRQ_STATUS_C) then
+            if av_wr = '1' and is_off(av_addr, REG_IRQ_STATUS_C) then
                 irq_status <= (irq_status and not wr_ones(irq_status'range)) or ev_v;
             else
                 irq_status <= irq_status or ev_v;
@@ -463,89 +550,97 @@ begin
                 acfg_done <= '1';
             end if;
 
-            if avs_write_i = '1' then
-                if is_off(avs_address_i, REG_CTRL_C) then
-                    sync_en  <= wr_merge(CTRL_SYNC_EN_C);
-                    omni_en  <= wr_merge(CTRL_OMNI_C);
+            if av_wr = '1' then
+                if is_off(av_addr, REG_CTRL_C) then
+                    sync_en  <= mrg_bit(sync_en, av_wd, be_bits, CTRL_SYNC_EN_C);
+                    omni_en  <= mrg_bit(omni_en, av_wd, be_bits, CTRL_OMNI_C);
                     reinit_o <= wr_ones(CTRL_REINIT_C);
                 end if;
-                if is_off(avs_address_i, REG_IRQ_ENABLE_C) then
-                    irq_enable <= wr_merge(irq_enable'range);
+                if is_off(av_addr, REG_IRQ_ENABLE_C) then
+                    irq_enable <= mrg(irq_enable, av_wd, be_bits, irq_bits_c - 1, 0);
                 end if;
-                if is_off(avs_address_i, REG_NMT_CMD_C) then
+                if is_off(av_addr, REG_NMT_CMD_C) then
                     nmt_req_o <= '1';
                 end if;
-                if is_off(avs_address_i, REG_SYNC_PERIOD_US_C) then
-                    sync_period <= wr_merge(SYNC_PERIOD_US_VALUE_HI_C downto
-                                            SYNC_PERIOD_US_VALUE_LO_C);
+                if is_off(av_addr, REG_SYNC_PERIOD_US_C) then
+                    sync_period <= mrg(sync_period, av_wd, be_bits,
+                                       SYNC_PERIOD_US_VALUE_HI_C, SYNC_PERIOD_US_VALUE_LO_C);
                 end if;
                 -- CiA 301 1019h: 0 or 2..240; no change while the SYNC producer runs
-                if is_off(avs_address_i, REG_SYNC_OVERFLOW_C) then
-                    if sync_ovf_ok(wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
-                                            SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
+                if is_off(av_addr, REG_SYNC_OVERFLOW_C) then
+                    if sync_ovf_ok(mrg(sync_overflow, av_wd, be_bits, SYNC_OVERFLOW_VALUE_HI_C,
+                                       SYNC_OVERFLOW_VALUE_LO_C), sync_overflow,
                                    sync_en = '1' and unsigned(sync_period) /= 0) then
-                        sync_overflow <= wr_merge(SYNC_OVERFLOW_VALUE_HI_C downto
-                                                  SYNC_OVERFLOW_VALUE_LO_C);
+                        sync_overflow <= mrg(sync_overflow, av_wd, be_bits,
+                                             SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C);
                         ovf_refused   <= '0';
                     else
                         ovf_refused <= '1';
                     end if;
                 end if;
-                if is_off(avs_address_i, REG_SYNC_WINDOW_US_C) then
-                    sync_window <= wr_merge(SYNC_WINDOW_US_VALUE_HI_C downto
-                                            SYNC_WINDOW_US_VALUE_LO_C);
+                if is_off(av_addr, REG_SYNC_WINDOW_US_C) then
+                    sync_window <= mrg(sync_window, av_wd, be_bits,
+                                       SYNC_WINDOW_US_VALUE_HI_C, SYNC_WINDOW_US_VALUE_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_EMCY_STATUS_C) then
+                if is_off(av_addr, REG_EMCY_STATUS_C) then
                     emcy_clear_o <= wr_ones(EMCY_STATUS_LOST_C);
                 end if;
-                if is_off(avs_address_i, REG_EMCY_POP_C) then
+                if is_off(av_addr, REG_EMCY_POP_C) then
                     emcy_pop_o <= '1';
                 end if;
-                if is_off(avs_address_i, REG_SDO_OBJ_C) then
-                    sdo_index    <= wr_merge(SDO_OBJ_INDEX_HI_C downto SDO_OBJ_INDEX_LO_C);
-                    sdo_subindex <= wr_merge(SDO_OBJ_SUBINDEX_HI_C downto SDO_OBJ_SUBINDEX_LO_C);
+                if is_off(av_addr, REG_SDO_OBJ_C) then
+                    sdo_index    <= mrg(sdo_index, av_wd, be_bits,
+                                        SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C);
+                    sdo_subindex <= mrg(sdo_subindex, av_wd, be_bits,
+                                        SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_SDO_CMD_C) then
+                if is_off(av_addr, REG_SDO_CMD_C) then
                     sdo_req_o <= '1';
                 end if;
                 -- a channel number the core does not have is ignored
-                if is_off(avs_address_i, REG_SDO_SEL_C)
-                   and to_integer(unsigned(wr_merge(SDO_SEL_CHAN_HI_C downto
-                                                       SDO_SEL_CHAN_LO_C))) < N_SDO then
-                    sdo_chan <= wr_merge(SDO_SEL_CHAN_HI_C downto SDO_SEL_CHAN_LO_C);
+                if is_off(av_addr, REG_SDO_SEL_C)
+                   and to_integer(unsigned(mrg(sdo_chan, av_wd, be_bits, SDO_SEL_CHAN_HI_C,
+                                                  SDO_SEL_CHAN_LO_C))) < N_SDO then
+                    sdo_chan <= mrg(sdo_chan, av_wd, be_bits, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_ACFG_FAIL_SEL_C) then
-                    acfg_fail_sel <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto
-                                              ACFG_FAIL_SEL_INDEX_LO_C);
+                if is_off(av_addr, REG_ACFG_FAIL_SEL_C) then
+                    acfg_fail_sel <= mrg(acfg_fail_sel, av_wd, be_bits,
+                                         ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_SDO_TIMEOUT_MS_C) then
-                    sdo_timeout <= wr_merge(SDO_TIMEOUT_MS_VALUE_HI_C downto
-                                            SDO_TIMEOUT_MS_VALUE_LO_C);
+                if is_off(av_addr, REG_SDO_TIMEOUT_MS_C) then
+                    sdo_timeout <= mrg(sdo_timeout, av_wd, be_bits,
+                                       SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_SDO_COB_C) then
-                    sdo_cob_req  <= wr_merge(SDO_COB_REQUEST_HI_C downto SDO_COB_REQUEST_LO_C);
-                    sdo_cob_resp <= wr_merge(SDO_COB_RESPONSE_HI_C downto SDO_COB_RESPONSE_LO_C);
+                if is_off(av_addr, REG_SDO_COB_C) then
+                    sdo_cob_req  <= mrg(sdo_cob_req, av_wd, be_bits,
+                                        SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C);
+                    sdo_cob_resp <= mrg(sdo_cob_resp, av_wd, be_bits,
+                                        SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_ACFG_CTRL_C) then
-                    acfg_nodes   <= wr_merge(ACFG_CTRL_START_NODES_C);
+                if is_off(av_addr, REG_ACFG_CTRL_C) then
+                    acfg_nodes   <= mrg_bit(acfg_nodes, av_wd, be_bits, ACFG_CTRL_START_NODES_C);
                     acfg_start_o <= wr_ones(ACFG_CTRL_START_C);
                     if wr_ones(ACFG_CTRL_START_C) = '1' then
                         acfg_done <= '0';
                     end if;
                 end if;
-                if is_off(avs_address_i, REG_ACFG_ENTRY_C) then
-                    acfg_entry <= unsigned(wr_merge(ACFG_ENTRY_ENTRY_HI_C downto
-                                                    ACFG_ENTRY_ENTRY_LO_C));
-                    acfg_node  <= wr_merge(ACFG_ENTRY_NODE_HI_C downto ACFG_ENTRY_NODE_LO_C);
-                    acfg_size  <= wr_merge(ACFG_ENTRY_SIZE_HI_C downto ACFG_ENTRY_SIZE_LO_C);
+                if is_off(av_addr, REG_ACFG_ENTRY_C) then
+                    acfg_entry <= unsigned(mrg(std_logic_vector(acfg_entry), av_wd, be_bits,
+                                               ACFG_ENTRY_ENTRY_HI_C, ACFG_ENTRY_ENTRY_LO_C));
+                    acfg_node  <= mrg(acfg_node, av_wd, be_bits,
+                                      ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C);
+                    acfg_size  <= mrg(acfg_size, av_wd, be_bits,
+                                      ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C);
                 end if;
-                if is_off(avs_address_i, REG_ACFG_OBJ_C) then
-                    acfg_index <= wr_merge(ACFG_OBJ_INDEX_HI_C downto ACFG_OBJ_INDEX_LO_C);
-                    acfg_sub   <= wr_merge(ACFG_OBJ_SUBINDEX_HI_C downto ACFG_OBJ_SUBINDEX_LO_C);
+                if is_off(av_addr, REG_ACFG_OBJ_C) then
+                    acfg_index <= mrg(acfg_index, av_wd, be_bits,
+                                      ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C);
+                    acfg_sub   <= mrg(acfg_sub, av_wd, be_bits,
+                                      ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C);
                 end if;
                 -- ACFG_VALUE: store the entry now, then point at the next one
                 -- (an entry with NODE > 127, or a size other than 1..4, is refused)
-                if is_off(avs_address_i, REG_ACFG_VALUE_C) then
+                if is_off(av_addr, REG_ACFG_VALUE_C) then
                     if acfg_entry_ok(acfg_node, acfg_size) then
                         acfg_tbl_we_o <= '1';
                         acfg_entry    <= acfg_entry + 1;
@@ -558,20 +653,23 @@ begin
                 -- node slots (static indices)
                 for k in 0 to MAX_NODES - 1 loop
 
-                    if is_off(avs_address_i, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C) then
-                        node_id(k)        <= wr_merge(NODE_CFG_NODE_ID_HI_C downto
-                                                      NODE_CFG_NODE_ID_LO_C);
-                        node_mode(k)      <= wr_merge(NODE_CFG_MODE_HI_C downto NODE_CFG_MODE_LO_C);
-                        node_autostart(k) <= wr_merge(NODE_CFG_AUTOSTART_C);
-                        node_rst_loss(k)  <= wr_merge(NODE_CFG_RESET_ON_LOSS_C);
+                    if is_off(av_addr, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C) then
+                        node_id(k)        <= mrg(node_id(k), av_wd, be_bits,
+                                                 NODE_CFG_NODE_ID_HI_C, NODE_CFG_NODE_ID_LO_C);
+                        node_mode(k)      <= mrg(node_mode(k), av_wd, be_bits,
+                                                 NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C);
+                        node_autostart(k) <= mrg_bit(node_autostart(k), av_wd, be_bits,
+                                                     NODE_CFG_AUTOSTART_C);
+                        node_rst_loss(k)  <= mrg_bit(node_rst_loss(k), av_wd, be_bits,
+                                                     NODE_CFG_RESET_ON_LOSS_C);
                     end if;
-                    if is_off(avs_address_i, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
-                        node_time(k) <= wr_merge(NODE_TIME_TIME_MS_HI_C downto
-                                                 NODE_TIME_TIME_MS_LO_C);
-                        node_life(k) <= wr_merge(NODE_TIME_LIFE_FACTOR_HI_C downto
-                                                 NODE_TIME_LIFE_FACTOR_LO_C);
+                    if is_off(av_addr, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
+                        node_time(k) <= mrg(node_time(k), av_wd, be_bits,
+                                            NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C);
+                        node_life(k) <= mrg(node_life(k), av_wd, be_bits,
+                                            NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C);
                     end if;
-                    if is_off(avs_address_i, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
+                    if is_off(av_addr, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
                         node_clear_o(k) <= wr_ones(NODE_STATUS_LOST_C)
                                            or wr_ones(NODE_STATUS_TOGGLE_ERR_C)
                                            or wr_ones(NODE_STATUS_BOOTUP_C);
@@ -591,18 +689,18 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if avs_write_i = '1' and is_off(avs_address_i, REG_NMT_CMD_C) then
-                nmt_cs_o   <= avs_writedata_i(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
-                nmt_node_o <= avs_writedata_i(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
+            if av_wr = '1' and is_off(av_addr, REG_NMT_CMD_C) then
+                nmt_cs_o   <= av_wd(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
+                nmt_node_o <= av_wd(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
             end if;
-            if avs_write_i = '1' and is_off(avs_address_i, REG_ACFG_VALUE_C) then
+            if av_wr = '1' and is_off(av_addr, REG_ACFG_VALUE_C) then
                 acfg_tbl_addr_o  <= std_logic_vector(acfg_entry);
-                acfg_tbl_value_o <= avs_writedata_i;
+                acfg_tbl_value_o <= av_wd;
             end if;
-            if avs_write_i = '1' and is_off(avs_address_i, REG_SDO_CMD_C) then
-                sdo_node_o   <= avs_writedata_i(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
-                sdo_upload_o <= avs_writedata_i(SDO_CMD_UPLOAD_C);
-                sdo_size_o   <= avs_writedata_i(SDO_CMD_SIZE_HI_C downto SDO_CMD_SIZE_LO_C);
+            if av_wr = '1' and is_off(av_addr, REG_SDO_CMD_C) then
+                sdo_node_o   <= av_wd(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
+                sdo_upload_o <= av_wd(SDO_CMD_UPLOAD_C);
+                sdo_size_o   <= av_wd(SDO_CMD_SIZE_HI_C downto SDO_CMD_SIZE_LO_C);
             end if;
         end if;
 
@@ -619,7 +717,20 @@ begin
                & '0' & cnt_malformed_i & '0' & cnt_unexpected_i & '0' & cnt_tx_frame_i
                & '0' & cnt_rx_frame_i;
 
-    cnt_off   <= unsigned(avs_address_i) - REG_CNT_RX_FRAMES_C;
+    -- ---------------------------------------------------------------------------------------------
+    -- Node status RAM read port (canopen_node_monitor): the slot of the addressed NODE_STATUS /
+    -- NODE_LAST_MS in the act cycle, the RAM's registered data selected in the next
+    -- ---------------------------------------------------------------------------------------------
+    nst_off        <= unsigned(av_addr) - REG_NODE_CFG_C;
+    node_st_slot_o <= '0' & std_logic_vector(nst_off(5 downto 2));
+    nst_sel        <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                               and nst_off(1 downto 0) = REG_NODE_STATUS_C - REG_NODE_CFG_C else
+                      '0';
+    nlast_sel      <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                               and nst_off(1 downto 0) = REG_NODE_LAST_MS_C - REG_NODE_CFG_C else
+                      '0';
+
+    cnt_off   <= unsigned(av_addr) - REG_CNT_RX_FRAMES_C;
     cnt_raddr <= std_logic_vector(cnt_off(3 downto 0));
     cnt_sel   <= '1' when cnt_off < cnt_num_c else
                  '0';
@@ -645,12 +756,12 @@ begin
     read_mux_proc : process (acfg_busy_i, acfg_done, acfg_entry, acfg_fail_abort_i,
                              acfg_fail_entry_i, acfg_fail_node_i, acfg_fail_sel, acfg_index,
                              acfg_node, acfg_nodes, acfg_nodes_fail_i, acfg_nodes_ok_i, acfg_ref,
-                             acfg_refused_i, acfg_size, acfg_sub, avs_address_i, bus_off_i,
+                             acfg_refused_i, acfg_size, acfg_sub, av_addr, bus_off_i,
                              ctrl_busy_i, eflg_i, emcy_count_i, emcy_data_i, emcy_lost_i,
                              emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
                              init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
-                             node_alive_i, node_autostart, node_bootup_i, node_id, node_last_i,
-                             node_life, node_lost_i, node_mode, node_nmt_i, node_rst_loss,
+                             node_alive_i, node_autostart, node_bootup_i, node_id,
+                             node_life, node_lost_i, node_mode, node_rst_loss,
                              node_time, node_toggle_i, omni_en, ovf_refused, rec_i,
                              sdo_abort_code_i, sdo_abort_sent_i, sdo_busy_i, sdo_chan,
                              sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
@@ -673,7 +784,7 @@ begin
 
     begin
 
-        a := avs_address_i;
+        a := av_addr;
         v := (others => '0');
 
         put(REG_ID_C, ID_RESET_C);
@@ -713,14 +824,12 @@ begin
             put(REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
                 at(node_time(k), NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C)
                 or at(node_life(k), NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C));
+            -- NMT_STATE and NODE_LAST_MS: the status RAM's data, selected after the read
             put(REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
-                at(node_nmt_i(7 * k + 6 downto 7 * k),
-                      NODE_STATUS_NMT_STATE_HI_C, NODE_STATUS_NMT_STATE_LO_C)
-                or at(node_alive_i(k), NODE_STATUS_ALIVE_C)
+                at(node_alive_i(k), NODE_STATUS_ALIVE_C)
                 or at(node_lost_i(k), NODE_STATUS_LOST_C)
                 or at(node_toggle_i(k), NODE_STATUS_TOGGLE_ERR_C)
                 or at(node_bootup_i(k), NODE_STATUS_BOOTUP_C));
-            put(REG_NODE_LAST_MS_C + k * REG_NODE_STRIDE_C, node_last_i(32 * k + 31 downto 32 * k));
 
         end loop;
 
@@ -783,7 +892,7 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if avs_read_i = '1' then
+            if av_rd = '1' then
                 rd_data <= rd_mux;
             end if;
         end if;
@@ -798,12 +907,16 @@ begin
             rd_buf   <= '0';
             rd_pdo   <= '0';
             rd_cnt   <= '0';
+            rd_nst   <= '0';
+            rd_nlast <= '0';
         elsif rising_edge(clk_i) then
-            rd_valid <= avs_read_i;
-            if avs_read_i = '1' then
-                rd_buf <= buf_sel;
-                rd_pdo <= pdo_sel;
-                rd_cnt <= cnt_sel;
+            rd_valid <= av_rd;
+            if av_rd = '1' then
+                rd_buf   <= buf_sel;
+                rd_pdo   <= pdo_sel;
+                rd_cnt   <= cnt_sel;
+                rd_nst   <= nst_sel;
+                rd_nlast <= nlast_sel;
             end if;
         end if;
 
@@ -812,7 +925,11 @@ begin
     avs_readdata_o      <= sdo_buf_rdata_i when rd_buf = '1' else
                            pdo_rdata_i when rd_pdo = '1' else
                            std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
-                           rd_data;
+                           node_st_last_i when rd_nlast = '1' else
+                           rd_data or at(nst_nmt, NODE_STATUS_NMT_STATE_HI_C,
+                                            NODE_STATUS_NMT_STATE_LO_C);
+    nst_nmt             <= node_st_nmt_i when rd_nst = '1' else
+                           (others => '0');
     avs_readdatavalid_o <= rd_valid;
 
     irq_o <= '1' when (irq_status and irq_enable) /= (irq_status'range => '0') else
@@ -821,19 +938,19 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- SDO_BUF pass-through (the RAM registers its read data: one cycle, like every register)
     -- ---------------------------------------------------------------------------------------------
-    sdo_buf_addr_o  <= std_logic_vector(resize(unsigned(avs_address_i(buf_bits_c - 1 downto 0)),
+    sdo_buf_addr_o  <= std_logic_vector(resize(unsigned(av_addr(buf_bits_c - 1 downto 0)),
                                                sdo_buf_addr_o'length));
-    sdo_buf_we_o    <= avs_write_i and buf_sel when avs_byteenable_i = "1111" else
+    sdo_buf_we_o    <= av_wr and buf_sel when av_be = "1111" else
                        '0';
-    sdo_buf_wdata_o <= avs_writedata_i;
+    sdo_buf_wdata_o <= av_wd;
 
     -- ---------------------------------------------------------------------------------------------
     -- PDO_WIN pass-through (the engine registers its read data: one cycle, like every register)
     -- ---------------------------------------------------------------------------------------------
-    pdo_addr_o  <= avs_address_i(pdo_bits_c - 1 downto 0);
-    pdo_we_o    <= avs_write_i and pdo_sel when avs_byteenable_i = "1111" else
+    pdo_addr_o  <= av_addr(pdo_bits_c - 1 downto 0);
+    pdo_we_o    <= av_wr and pdo_sel when av_be = "1111" else
                    '0';
-    pdo_wdata_o <= avs_writedata_i;
+    pdo_wdata_o <= av_wd;
 
     -- ---------------------------------------------------------------------------------------------
     -- Configuration outputs
@@ -861,9 +978,10 @@ begin
     sdo_chan_o               <= sdo_chan;
     -- the failure log's read address follows a write at once, so a read in the next cycle
     -- already shows the selected failure (the log RAM registers its read data)
-    acfg_fail_sel_o    <= wr_merge(ACFG_FAIL_SEL_INDEX_HI_C downto ACFG_FAIL_SEL_INDEX_LO_C)
-                          when avs_write_i = '1'
-                               and is_off(avs_address_i, REG_ACFG_FAIL_SEL_C) else
+    acfg_fail_sel_o    <= mrg(acfg_fail_sel, av_wd, be_bits,
+                                 ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C)
+                          when av_wr = '1'
+                               and is_off(av_addr, REG_ACFG_FAIL_SEL_C) else
                           acfg_fail_sel;
     acfg_start_nodes_o <= acfg_nodes;
     acfg_tbl_node_o    <= acfg_node(6 downto 0);

@@ -366,12 +366,14 @@ architecture rtl of canopen_master_core is
     signal acfg_nmt_pending : std_logic;
     signal acfg_nmt_cmd     : std_logic_vector(6 downto 0);
 
-    signal st_nmt           : std_logic_vector(7 * MAX_NODES - 1 downto 0);
+    -- node status RAM of the monitor, read by the host registers: slot, NMT state, last time
+    signal node_st_slot     : std_logic_vector(4 downto 0);
+    signal node_st_nmt      : std_logic_vector(6 downto 0);
+    signal node_st_last     : std_logic_vector(31 downto 0);
     signal st_alive         : std_logic_vector(MAX_NODES - 1 downto 0);
     signal st_lost          : std_logic_vector(MAX_NODES - 1 downto 0);
     signal st_toggle        : std_logic_vector(MAX_NODES - 1 downto 0);
     signal st_bootup        : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal st_last          : std_logic_vector(32 * MAX_NODES - 1 downto 0);
     signal ev_lost          : std_logic_vector(MAX_NODES - 1 downto 0);
     signal ev_toggle        : std_logic_vector(MAX_NODES - 1 downto 0);
     signal ev_bootup        : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -1176,12 +1178,13 @@ begin
             cfg_life_i          => cfg_life,
             cfg_autostart_i     => cfg_autostart,
             cfg_reset_on_loss_i => cfg_reset_loss,
-            st_nmt_o            => st_nmt,
             st_alive_o          => st_alive,
             st_lost_o           => st_lost,
             st_toggle_o         => st_toggle,
             st_bootup_o         => st_bootup,
-            st_last_o           => st_last,
+            st_rd_slot_i        => node_st_slot,
+            st_rd_nmt_o         => node_st_nmt,
+            st_rd_last_o        => node_st_last,
             st_clear_i          => node_clear,
             ev_lost_o           => ev_lost,
             ev_toggle_o         => ev_toggle,
@@ -1510,12 +1513,13 @@ begin
             tec_i                    => can_tec,
             rec_i                    => can_rec,
             eflg_i                   => can_eflg,
-            node_nmt_i               => st_nmt,
             node_alive_i             => st_alive,
             node_lost_i              => st_lost,
             node_toggle_i            => st_toggle,
             node_bootup_i            => st_bootup,
-            node_last_i              => st_last,
+            node_st_slot_o           => node_st_slot,
+            node_st_nmt_i            => node_st_nmt,
+            node_st_last_i           => node_st_last,
             emcy_count_i             => emcy_count,
             emcy_lost_i              => emcy_lost,
             emcy_node_i              => emcy_node_h,

@@ -62,13 +62,15 @@ entity canopen_node_monitor is
         cfg_autostart_i     : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- start on boot
         cfg_reset_on_loss_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- reset on loss
         -- per-slot status
-        st_nmt_o    : out   std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- last NMT state
-        st_alive_o  : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- heard, not expired
-        st_lost_o   : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: loss
-        st_toggle_o : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: toggle error
-        st_bootup_o : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- sticky: boot-up seen
-        st_last_o   : out   std_logic_vector(32 * MAX_NODES - 1 downto 0); -- time last heard
-        st_clear_i  : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- clear sticky bits
+        st_alive_o  : out   std_logic_vector(MAX_NODES - 1 downto 0); -- heard, not expired
+        st_lost_o   : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: loss
+        st_toggle_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: toggle error
+        st_bootup_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: boot-up seen
+        st_clear_i  : in    std_logic_vector(MAX_NODES - 1 downto 0); -- clear sticky bits
+        -- status RAM read port (last NMT state and time of a slot, registered: +1 cycle)
+        st_rd_slot_i : in    std_logic_vector(4 downto 0);  -- slot to read
+        st_rd_nmt_o  : out   std_logic_vector(6 downto 0);  -- its last NMT state
+        st_rd_last_o : out   std_logic_vector(31 downto 0); -- its time last heard [ms]
         -- event strobes
         ev_lost_o   : out   std_logic_vector(MAX_NODES - 1 downto 0); -- strobe: loss
         ev_toggle_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- strobe: toggle error
@@ -151,10 +153,6 @@ architecture rtl of canopen_node_monitor is
     -- ---------------------------------------------------------------------------------------------
 
     subtype slot_t is natural range 0 to MAX_NODES - 1;
-
-    type vec7_array_t is array (0 to MAX_NODES - 1) of std_logic_vector(6 downto 0);
-
-    type vec32_array_t is array (0 to MAX_NODES - 1) of std_logic_vector(31 downto 0);
 
     -- receive sequencer
 
@@ -244,10 +242,17 @@ architecture rtl of canopen_node_monitor is
     signal vis_due_first : std_logic;
     signal vis_rtr_now   : std_logic;
 
-    -- per-slot status
-    signal nmt_q    : vec7_array_t;
-    signal last_q   : vec32_array_t;
+    -- per-slot status; the last NMT state and time of each slot are a word in the status RAM
+    -- ({state, time}, written when a frame of the slot is heard), heard_q marks the slots
+    -- written since reset (the others read 0)
     signal alive_q  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal heard_q  : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_we    : std_logic;
+    signal st_wdata : std_logic_vector(38 downto 0);
+    signal st_raddr : slot_t;
+    signal st_rdata : std_logic_vector(38 downto 0);
+    signal st_rd_ok : std_logic;
+    signal st_rd_in : std_logic;
     signal lost_q   : std_logic_vector(MAX_NODES - 1 downto 0);
     signal toggle_q : std_logic_vector(MAX_NODES - 1 downto 0);
     signal bootup_q : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -883,9 +888,8 @@ begin
     begin
 
         if rst_n_i = '0' then
-            nmt_q        <= (others => (others => '0'));
-            last_q       <= (others => (others => '0'));
             alive_q      <= (others => '0');
+            heard_q      <= (others => '0');
             lost_q       <= (others => '0');
             toggle_q     <= (others => '0');
             bootup_q     <= (others => '0');
@@ -968,8 +972,7 @@ begin
                     due_first_q(k) <= vis_due_first;
                     rtr_out_q(k)   <= vis_out;
                     if vis_heard = '1' then
-                        nmt_q(k)   <= rx_state_byte;
-                        last_q(k)  <= rx_time_q;
+                        heard_q(k) <= '1'; -- state and time: the status RAM (st_we)
                         alive_q(k) <= '1';
                     end if;
                     if vis_bootup = '1' then
@@ -1209,13 +1212,65 @@ begin
     emcy_time_o  <= emcy_q(31 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
-    -- Flattened per-slot status
+    -- Status RAM: {last NMT state, time last heard} per slot, written by the visit of a heard
+    -- frame, read by the host (canopen_host_regs) through st_rd_slot_i, data one cycle later
+    -- (a read in the cycle of the write returns the word before it)
     -- ---------------------------------------------------------------------------------------------
+    st_we    <= visit and vis_heard;
+    st_wdata <= rx_state_byte & rx_time_q;
+    st_rd_in <= '1' when unsigned(st_rd_slot_i) < MAX_NODES else
+                '0';
+    st_raddr <= to_integer(unsigned(st_rd_slot_i)) when st_rd_in = '1' else
+                0;
 
-    status_gen : for k in 0 to MAX_NODES - 1 generate
-        st_nmt_o(7 * k + 6 downto 7 * k)     <= nmt_q(k);
-        st_last_o(32 * k + 31 downto 32 * k) <= last_q(k);
-    end generate status_gen;
+    -- two RAMs: a 39-bit word would need two M9K and yosys leaves it in logic; the 32-bit time
+    -- fills one M9K, the 7-bit state another
+    st_last_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => MAX_NODES,
+            WIDTH => 32
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => st_we,
+            waddr_i => eng_slot,
+            wdata_i => st_wdata(31 downto 0),
+            re_i    => one,
+            raddr_i => st_raddr,
+            rdata_o => st_rdata(31 downto 0)
+        );
+
+    st_nmt_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => MAX_NODES,
+            WIDTH => 7
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => st_we,
+            waddr_i => eng_slot,
+            wdata_i => st_wdata(38 downto 32),
+            re_i    => one,
+            raddr_i => st_raddr,
+            rdata_o => st_rdata(38 downto 32)
+        );
+
+    -- the slot was heard since reset (sampled with the RAM read: before a write at that edge)
+    st_ok_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            st_rd_ok <= '0';
+        elsif rising_edge(clk_i) then
+            st_rd_ok <= st_rd_in and heard_q(st_raddr);
+        end if;
+
+    end process st_ok_proc;
+
+    st_rd_nmt_o  <= st_rdata(38 downto 32) when st_rd_ok = '1' else
+                    (others => '0');
+    st_rd_last_o <= st_rdata(31 downto 0) when st_rd_ok = '1' else
+                    (others => '0');
 
     st_alive_o  <= alive_q;
     st_lost_o   <= lost_q;

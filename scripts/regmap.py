@@ -946,6 +946,14 @@ def gen_markdown() -> str:
         "which also generates [`rtl/canopen_regs_pkg.vhd`](../rtl/canopen_regs_pkg.vhd) and",
         "[`tb/tblib/regmap.py`](../tb/tblib/regmap.py).",
         "",
+        "Bus timing: every Avalon input is registered at the port and the read data comes from "
+        "registers:",
+        "**fixed read latency 2** for every address (reads may follow each other in every "
+        "cycle), no",
+        "`waitrequest`; a write is accepted in its bus cycle and acts one cycle later, in order "
+        "with the",
+        "reads around it.",
+        "",
         "Access: **RO** read only; **RW** read/write; **W1C** reads a flag, writing 1 clears it "
         "(or",
         "requests clearing from the block that holds it); **WO** write only (the bits read as "
@@ -1016,8 +1024,8 @@ def gen_markdown() -> str:
           f"{SDO_BUF.addr:02X}h..{end:02X}h, {SDO_BUF.access}: {SDO_BUF.desc}. Word w is word "
           "address w of the",
           "buffer port (`sdo_buf_addr_o`); reads return the port's data with the same fixed "
-          "latency of one",
-          "cycle as every register. Writes need all four byte enables (the port has no byte "
+          "latency of two",
+          "cycles as every register. Writes need all four byte enables (the port has no byte "
           "lanes): a write",
           "with `avs_byteenable_i` /= 1111 to the window is ignored.", ""]
     L += [f"### {PDO_WIN.name}", "",
@@ -1025,7 +1033,8 @@ def gen_markdown() -> str:
           "`canopen_host_regs` passes",
           "every access through (`pdo_addr_o` = word offset, `pdo_we_o`, `pdo_wdata_o`; "
           "`pdo_rdata_i` one cycle",
-          "later, the same read latency as every register); like `SDO_BUF`, a write with",
+          "after the port address, the same read latency as every register); like `SDO_BUF`, "
+          "a write with",
           "`avs_byteenable_i` /= 1111 is ignored. The registers below are implemented by",
           "[`canopen_pdo_engine`](canopen_pdo_engine.md); offsets of the window not listed read "
           "0 and ignore",

@@ -8,7 +8,8 @@ port; a model of the PDO engine's register port (registered read data) on the ``
 a small SDO client model answers ``sdo_req_o`` with busy/done/abort. Checkers that run in every
 test:
 
-* Avalon: ``avs_readdatavalid_o`` is high exactly one cycle after each ``avs_read_i`` cycle;
+* Avalon: ``avs_readdatavalid_o`` is high exactly two cycles after each ``avs_read_i`` cycle
+  (registered inputs, registered read data: read latency 2);
 * strobes: every pulse output is high for one cycle at a time; each pulse is logged with the
   fields it carries so tests compare them with what was written.
 
@@ -49,6 +50,9 @@ STATUS_INPUTS = {
 }
 SLOT_INPUTS = {"node_nmt_i": 7, "node_alive_i": 1, "node_lost_i": 1, "node_toggle_i": 1,
                "node_bootup_i": 1, "node_last_i": 32}
+#: slot values the block reads through the node monitor's status RAM port (node_st_slot_o ->
+#: node_st_nmt_i / node_st_last_i one cycle later), held flat by the bench's model of that port
+RAM_SLOT_INPUTS = {"node_nmt_i": "node_st_nmt_i", "node_last_i": "node_st_last_i"}
 EVENTS = {"NODE": "ev_node_i", "EMCY": "ev_emcy_i", "SDO_DONE": "ev_sdo_done_i",
           "CAN_ERROR": "ev_can_error_i", "SYNC": "ev_sync_i", "FRAME_ERROR": "ev_frame_error_i",
           "INIT": "ev_init_i", "CONFIG": "ev_acfg_done_i"}
@@ -165,7 +169,8 @@ class TB:
         for name in ("avs_read_i", "avs_write_i", "avs_writedata_i", "avs_byteenable_i",
                      "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", "sdo_start_i",
                      *STATUS_INPUTS,
-                     *SLOT_INPUTS,
+                     *(n for n in SLOT_INPUTS if n not in RAM_SLOT_INPUTS),
+                     *RAM_SLOT_INPUTS.values(),
                      *EVENTS.values(), *COUNT_INPUTS.values()):
             getattr(dut, name).value = 0
         self.host = CanopenMasterHost(dut, dut.clk_i, max_polls=200, poll_cycles=4)
@@ -186,7 +191,10 @@ class TB:
         #: the client model refuses every request (sdo_refused_i, no sdo_start_i) while set
         self.sdo_refuse = False
         cocotb.start_soon(self._cycle_monitor())
+        #: the node monitor's status RAM (flat values, slot k in bits w(k+1)-1..wk)
+        self.node_ram = {n: 0 for n in RAM_SLOT_INPUTS}
         cocotb.start_soon(self._ram_model())
+        cocotb.start_soon(self._node_status_model())
         cocotb.start_soon(self._pdo_model())
         cocotb.start_soon(self._sdo_client())
 
@@ -195,10 +203,12 @@ class TB:
         """Count cycles, check the read latency and log strobes (values of the ended cycle)."""
         dut = self.dut
         last_high: dict[str, int] = {}
+        prev_read = 0  # avs_read_i sampled at the previous edge
         while True:
             await RisingEdge(dut.clk_i)
             self.cycle += 1
             if dut.rst_n_i.value != 1:
+                prev_read = 0
                 continue
             read = dut.avs_read_i.value
             for name, fields in STROBES.items():
@@ -211,10 +221,10 @@ class TB:
                     self.pulses.append((self.cycle, name, int(v), snap))
             await ReadOnly()
             valid = dut.avs_readdatavalid_o.value
-            expected = int(read) if read.is_resolvable else 0
-            assert int(valid) == expected, (
-                f"avs_readdatavalid_o = {valid} one cycle after avs_read_i = {read} "
-                f"(cycle {self.cycle}): read latency must be exactly 1")
+            assert int(valid) == prev_read, (
+                f"avs_readdatavalid_o = {valid} two cycles after avs_read_i = {prev_read} "
+                f"(cycle {self.cycle}): read latency must be exactly 2")
+            prev_read = int(read) if read.is_resolvable else 0
 
     async def _ram_model(self) -> None:
         """Synchronous RAM: address/write sampled at the edge, read data registered."""
@@ -232,6 +242,28 @@ class TB:
             while len(pipe) > 1 + self.ram_extra_latency:
                 pipe.pop(0)
             dut.sdo_buf_rdata_i.value = pipe[0]
+
+    async def _node_status_model(self) -> None:
+        """Node monitor's status RAM port: slot sampled at the edge, its data registered."""
+        dut = self.dut
+        while True:
+            await RisingEdge(dut.clk_i)
+            slot = dut.node_st_slot_o.value
+            if not slot.is_resolvable:
+                continue
+            k = int(slot)
+            for name, port in RAM_SLOT_INPUTS.items():
+                w = SLOT_INPUTS[name]
+                flat = self.node_ram[name] if k < self.max_nodes else 0
+                word = (flat >> (w * k)) & ((1 << w) - 1)
+                getattr(dut, port).value = word
+
+    def set_input(self, name: str, value: int) -> None:
+        """Drive a status input (or the status RAM model's flat value)."""
+        if name in RAM_SLOT_INPUTS:
+            self.node_ram[name] = value
+        else:
+            getattr(self.dut, name).value = value
 
     async def _pdo_model(self) -> None:
         """PDO engine register port: write at the edge, read data registered (offset ->
@@ -302,8 +334,9 @@ class TB:
 
     # ------------------------------------------------------------------ actions
     async def settle(self) -> None:
-        """Two clock edges: strobes and RAM writes of the last bus access are logged."""
-        await ClockCycles(self.dut.clk_i, 2)
+        """Three clock edges: strobes and RAM writes of the last bus access are logged (the
+        block registers the Avalon request first)."""
+        await ClockCycles(self.dut.clk_i, 3)
 
     async def reset(self) -> None:
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
@@ -367,18 +400,20 @@ class TB:
 
     async def raw_write(self, addr: int, data: int, byteenable: int = 0xF,
                         with_input: str | None = None) -> None:
-        """A write driven pin by pin, ``with_input`` high in the very cycle it is sampled."""
+        """A write driven pin by pin, ``with_input`` high in the very cycle the write acts (the
+        cycle after the bus cycle: the block registers the Avalon request first)."""
         dut = self.dut
         await FallingEdge(dut.clk_i)
         dut.avs_address_i.value = addr
         dut.avs_writedata_i.value = data
         dut.avs_byteenable_i.value = byteenable
         dut.avs_write_i.value = 1
-        if with_input:
-            getattr(dut, with_input).value = 1
         await FallingEdge(dut.clk_i)
         dut.avs_write_i.value = 0
         dut.avs_byteenable_i.value = 0
+        if with_input:
+            getattr(dut, with_input).value = 1
+        await FallingEdge(dut.clk_i)
         if with_input:
             getattr(dut, with_input).value = 0
 
@@ -451,7 +486,7 @@ async def run_ro_inputs_visible(dut):
         values = {n: random.getrandbits(tb.input_width(n)) for n in (*STATUS_INPUTS, *SLOT_INPUTS)}
         await FallingEdge(dut.clk_i)
         for n, v in values.items():
-            getattr(dut, n).value = v
+            tb.set_input(n, v)
         regs = {reg for reg, _ in RO_SOURCES}
         for reg in sorted(regs):
             info = R.REGISTERS[reg]
@@ -490,6 +525,7 @@ async def run_irq_w1c_and_masking(dut):
         await host.irq_enable(IRQ_ALL & ~bit)
         assert dut.irq_o.value == 0
         await host.irq_enable(name)
+        await RisingEdge(dut.clk_i)  # the write takes effect one cycle after the bus cycle
         await ReadOnly()
         assert dut.irq_o.value == 1, f"{name}: irq_o low while enabled and pending"
         await host.irq_clear(IRQ_ALL & ~bit)  # other bits: nothing to clear
@@ -760,18 +796,24 @@ async def run_sdo_channel_select(dut):
     if n > 1:
         await host.write("SDO_SEL", R.make("SDO_SEL", CHAN=0))
         assert await host.read("SDO_CMD") & R.SDO_CMD_DONE
-    # ACFG_FAIL_SEL: combinational in the write cycle, registered afterwards
+    # ACFG_FAIL_SEL: combinational in the cycle the registered write acts (the cycle after the
+    # bus write cycle), registered afterwards
     seen = []
 
     async def watch() -> None:
+        prev = False
         while True:
-            await FallingEdge(dut.clk_i)  # the middle of the write cycle
-            if dut.avs_write_i.value == 1 and int(dut.avs_address_i.value) == R.REG_ACFG_FAIL_SEL:
+            await FallingEdge(dut.clk_i)  # the middle of a cycle
+            if prev:
                 seen.append(int(dut.acfg_fail_sel_o.value))
+            prev = (dut.avs_write_i.value == 1
+                    and int(dut.avs_address_i.value) == R.REG_ACFG_FAIL_SEL)
 
     task = cocotb.start_soon(watch())
     for k in (5, 0, 15):
         await host.write("ACFG_FAIL_SEL", k)
+        await RisingEdge(dut.clk_i)
+        await ReadOnly()
         assert seen[-1] == k and int(dut.acfg_fail_sel_o.value) == k
     task.cancel()
 

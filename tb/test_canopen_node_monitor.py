@@ -118,7 +118,7 @@ class TB:
         self.events = self.strobes.events
         for sig in (dut.tick_ms_i, dut.time_ms_i, dut.st_clear_i, dut.emcy_clear_i,
                     dut.emcy_pop_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_rtr_i,
-                    dut.rx_dlc_i, dut.rx_data_i):
+                    dut.rx_dlc_i, dut.rx_data_i, dut.st_rd_slot_i):
             sig.value = 0
         self.apply_cfg()
 
@@ -263,8 +263,15 @@ class TB:
     def bit(self, sig: str, slot: int) -> int:
         return int(getattr(self.dut, sig).value) >> slot & 1
 
-    def slot_field(self, sig: str, slot: int, width: int) -> int:
-        return int(getattr(self.dut, sig).value) >> (width * slot) & ((1 << width) - 1)
+    async def st_read(self, slot: int, field: str) -> int:
+        """A read of the status RAM port (``field`` "nmt" or "last") as the host registers do:
+        slot on ``st_rd_slot_i``, the registered data one cycle later. Ends at a falling edge."""
+        dut = self.dut
+        await FallingEdge(dut.clk_i)
+        dut.st_rd_slot_i.value = slot
+        await RisingEdge(dut.clk_i)
+        await FallingEdge(dut.clk_i)
+        return int((dut.st_rd_nmt_o if field == "nmt" else dut.st_rd_last_o).value)
 
     # ------------------------------------------------------------------ actions
     async def wait_ms(self, ms: float) -> None:
@@ -336,7 +343,8 @@ class TB:
 async def run_bootup_autostart(dut):
     """Purpose: boot-up handling and automatic NMT start.
 
-    Verifies: each node's boot-up sets st_bootup, st_nmt = 00h and one ev_bootup in its slot;
+    Verifies: before any frame every slot reads 0 through the status RAM port (no reset of
+    the RAM); each node's boot-up sets st_bootup, st_nmt = 00h and one ev_bootup in its slot;
     slots with autostart answer rx_reply_o (with tx_req_o already up) and the NMT start
     [01h, node] goes on the bus, so those slaves become operational, the slot without autostart
     stays pre-operational; heartbeats then report 05h / 7Fh and the reception time in st_last;
@@ -346,12 +354,15 @@ async def run_bootup_autostart(dut):
     for node in NODES:
         tb.slot(node, mode=MODE_HB, time_ms=20, autostart=node != 4)
     tb.apply_cfg()
+    # the status RAM has no reset: a slot not heard since reset reads 0 (never a stale word)
+    for k in range(tb.n):
+        assert await tb.st_read(k, "nmt") == 0 and await tb.st_read(k, "last") == 0
     await tb.start()
     await tb.wait_ms(BOOT_MS + 1.5)
     for node in NODES:
         k = tb.slot_of[node]
         assert len(tb.ev("ev_bootup", k)) == 1
-        assert tb.bit("st_bootup_o", k) == 1 and tb.slot_field("st_nmt_o", k, 7) == 0
+        assert tb.bit("st_bootup_o", k) == 1 and await tb.st_read(k, "nmt") == 0
         boots = tb.rx_from(node)
         assert len(boots) == 1 and bytes(boots[0].msg.data) == b"\x00"
         assert boots[0].reply == (node != 4)
@@ -365,8 +376,8 @@ async def run_bootup_autostart(dut):
     for node in NODES:
         k = tb.slot_of[node]
         last = tb.rx_from(node)[-1]
-        assert tb.slot_field("st_nmt_o", k, 7) == (0x7F if node == 4 else 0x05)
-        assert tb.slot_field("st_last_o", k, 32) == last.time_ms
+        assert await tb.st_read(k, "nmt") == (0x7F if node == 4 else 0x05)
+        assert await tb.st_read(k, "last") == last.time_ms
         assert tb.bit("st_alive_o", k) == 1 and tb.bit("st_lost_o", k) == 0
     await tb.pulse(dut.st_clear_i, 1 << tb.slot_of[2])
     await ReadOnly()
@@ -460,7 +471,7 @@ async def run_guarding_toggle_and_life(dut):
     await tb.wait_ms(4 * g)
     for node in NODES:
         k = tb.slot_of[node]
-        assert tb.bit("st_alive_o", k) == 1 and tb.slot_field("st_nmt_o", k, 7) == 0x05
+        assert tb.bit("st_alive_o", k) == 1 and await tb.st_read(k, "nmt") == 0x05
         rtrs = tb.tx_frames(0x700 + node, rtr=True)
         assert all(t.msg.dlc == 1 for t in rtrs)
         # one RTR every G ms: requested at a tick, taken within the same ms
@@ -680,10 +691,10 @@ async def run_unexpected_and_malformed(dut):
         assert flags == exp and not rec.reply, f"{msg}: {flags}, expected {want}"
     k1, k2, k3 = (tb.slot_of[n] for n in (1, 2, 3))
     assert tb.events["ev_bootup"] == [] and tb.events["ev_toggle"] == []
-    assert tb.slot_field("st_nmt_o", k1, 7) == 0x05 and tb.slot_field("st_nmt_o", k2, 7) == 0
-    assert tb.slot_field("st_nmt_o", k3, 7) == 0x7F and tb.bit("st_alive_o", k2) == 0
+    assert await tb.st_read(k1, "nmt") == 0x05 and await tb.st_read(k2, "nmt") == 0
+    assert await tb.st_read(k3, "nmt") == 0x7F and tb.bit("st_alive_o", k2) == 0
     accepted = [r for r in got if r.msg.arbitration_id == 0x703][0]
-    assert tb.slot_field("st_last_o", k3, 32) == accepted.time_ms
+    assert await tb.st_read(k3, "last") == accepted.time_ms
     assert int(dut.emcy_count_o.value) == 1 and len(tb.events["ev_emcy"]) == 1
     assert int(dut.emcy_node_o.value) == 0x7F
     assert int(dut.emcy_data_o.value) == int.from_bytes(bytes(range(8)), "little")

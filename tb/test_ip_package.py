@@ -13,7 +13,8 @@ this file. It parses the ``_hw.tcl`` with regular expressions and compares it wi
 * the QUARTUS_SYNTH and SIM_VHDL filesets list exactly ``rtl/files.f``, in order, with the top
   level ``canopen_master_top``;
 * the Avalon-MM slave's address width equals ``avs_address_i``'s, it uses word addressing, fixed
-  read latency 1 and no waitrequest/readdatavalid; the data width matches the byte enables;
+  read latency 2 (registered inputs and read data) and no waitrequest/readdatavalid; the data
+  width matches the byte enables;
 * every ``associatedClock``/``associatedReset``/``associatedAddressablePoint`` names an interface
   of the right type.
 
@@ -343,7 +344,8 @@ def fileset_problems(comp: Component, order: list[Path]) -> list[str]:
 
 def avalon_problems(comp: Component, ports: list[Port]) -> list[str]:
     """The Avalon-MM slave: address width = avs_address_i, word addressing, fixed read latency
-    1 (the core has no waitrequest and no variable latency), 32-bit data with 4 byte enables."""
+    2 (registered inputs, registered read data; no waitrequest and no variable latency), 32-bit
+    data with 4 byte enables."""
     slaves = [n for n, (kind, d) in comp.interfaces.items() if kind == "avalon" and d == "end"]
     if len(slaves) != 1:
         return [f"expected exactly one Avalon-MM slave (avalon end), found {slaves}"]
@@ -361,7 +363,7 @@ def avalon_problems(comp: Component, ports: list[Port]) -> list[str]:
         if addr.width != str(width.get("avs_address_i")):
             problems.append(f"{s}: address width {addr.width}, avs_address_i is "
                             f"{width.get('avs_address_i')} bits")
-    expected_props = {"addressUnits": "WORDS", "readLatency": "1", "readWaitTime": "0",
+    expected_props = {"addressUnits": "WORDS", "readLatency": "2", "readWaitTime": "0",
                       "writeWaitTime": "0", "bitsPerSymbol": "8",
                       "associatedClock": "clock", "associatedReset": "reset"}
     problems += [f"{s}: {k} = {props.get(k)}, expected {v}" for k, v in expected_props.items()
@@ -532,12 +534,13 @@ def test_checks_can_fail():
     assert any(p.startswith("fileset QUARTUS_SYNTH: non-VHDL files {}") for p in problems)
 
     # Avalon and associations: a waitrequest role, variable latency, a dangling association
-    bad = _sub_once(tcl, r"^(set_interface_property s0 readLatency\s+)1", r"\g<1>0")
+    # (latency 1: the value before the Avalon inputs were registered)
+    bad = _sub_once(tcl, r"^(set_interface_property s0 readLatency\s+)2", r"\g<1>1")
     bad = _sub_once(bad, r"^(set_interface_property irq associatedAddressablePoint )s0",
                     r"\1s1")
     bad += "add_interface_port s0 avs_readdatavalid_o readdatavalid Output 1\n"
     problems = all_problems(bad, vhdl, order)
-    assert "s0: readLatency = 0, expected 1" in problems, problems
+    assert "s0: readLatency = 1, expected 2" in problems, problems
     assert any(p.startswith("s0: role readdatavalid present") for p in problems)
     assert "irq: associatedAddressablePoint s1 is not a avalon interface" in problems
 

@@ -9,7 +9,7 @@
 -- Purpose:
 --   Proves that the packaged file list elaborates and that the core is alive, with no MCP2510
 --   attached (SO stuck high, as with a pull-up and no chip):
---     1. ID and VERSION read back the reset words of the register package, with read latency 1;
+--     1. ID and VERSION read back the reset words of the register package, with read latency 2;
 --     2. TIME_US counts microseconds (10 us of simulated time = 10 counts);
 --     3. the first SPI byte after reset is the MCP2510 RESET instruction (C0h);
 --     4. the controller's configuration check fails, it retries, and the core reports the dead
@@ -125,7 +125,7 @@ begin
 
     stimulus_proc : process is
 
-        -- one Avalon read: command for one cycle, data exactly one cycle later (readLatency 1)
+        -- one Avalon read: command for one cycle, data exactly two cycles later (readLatency 2)
 
         procedure avs_read (addr : natural; data : out std_logic_vector(31 downto 0)) is
         begin
@@ -136,8 +136,12 @@ begin
             wait until rising_edge(clk);
             read    <= '0';
             wait until rising_edge(clk);
+            assert readdatavld = '0'
+                report "readdatavalid high one cycle after the read (read latency is 2)"
+                severity failure;
+            wait until rising_edge(clk);
             assert readdatavld = '1'
-                report "readdatavalid not high one cycle after the read"
+                report "readdatavalid not high two cycles after the read"
                 severity failure;
             data    := readdata;
 
