@@ -143,6 +143,8 @@ architecture rtl of omni_engine is
     constant cnt_late_c   : natural := 7;
     constant cnt_prx_c    : natural := 8;
     constant cnt_num_c    : natural := 9;
+    -- bits of a counter's amount per cycle (OMNI_CNT_MISSED / NODE_MISSING: up to N_SLOTS = 8)
+    constant cnt_inc_bits_c : natural := 4;
 
     type nat_arr_t is array (natural range <>) of natural;
 
@@ -208,9 +210,7 @@ architecture rtl of omni_engine is
 
     type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
 
-    type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
-
-    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 8;
+    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** cnt_inc_bits_c - 1;
 
     type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
 
@@ -316,6 +316,19 @@ architecture rtl of omni_engine is
 
     end function wc_of;
 
+    -- the last value of a modulo-n count: n - 1, and 0 for n = 0 (acts as 1)
+
+    function last_of (n : unsigned(15 downto 0)) return unsigned is
+    begin
+
+        if n = 0 then
+            return to_unsigned(0, 16);
+        end if;
+
+        return n - 1;
+
+    end function last_of;
+
     -- ---------------------------------------------------------------------------------------------
     -- Configuration (host)
     -- ---------------------------------------------------------------------------------------------
@@ -329,6 +342,10 @@ architecture rtl of omni_engine is
     -- K, M, query window [us]
     signal k_reg    : unsigned(15 downto 0);
     signal m_reg    : unsigned(15 downto 0);
+    -- K - 1 and M - 1 (16 bits, 0 for K, M <= 1), registered with K and M: the cycle-instant
+    -- wrap compares kmod / pmod with a register, no subtractor in the path
+    signal k_last : unsigned(15 downto 0);
+    signal m_last : unsigned(15 downto 0);
     signal qwin_reg : unsigned(15 downto 0);
     -- N_AXES out of range for the layout
     signal cfg_err : std_logic;
@@ -504,7 +521,12 @@ architecture rtl of omni_engine is
     -- read multiplexer and its register; counters
     signal rd_mux  : std_logic_vector(31 downto 0);
     signal rdata_q : std_logic_vector(31 downto 0);
-    signal cnt     : cnt_arr_t;
+    -- counters (canopen_counter_bank): amounts of the events of the previous cycle, read
+    -- address, the registered read is a counter, its read data
+    signal cnt_inc   : std_logic_vector(cnt_num_c * cnt_inc_bits_c - 1 downto 0);
+    signal cnt_ra    : std_logic_vector(3 downto 0);
+    signal cnt_sel_q : std_logic;
+    signal cnt_q     : std_logic_vector(31 downto 0);
 
 begin
 
@@ -723,7 +745,9 @@ begin
             sync_mode <= '0';
             stop_miss <= '0';
             k_reg     <= unsigned(OMNI_SYNC_K_RESET_C(15 downto 0));
+            k_last    <= last_of(unsigned(OMNI_SYNC_K_RESET_C(15 downto 0)));
             m_reg     <= (others => '0');
+            m_last    <= (others => '0');
             qwin_reg  <= unsigned(OMNI_QUERY_WIN_RESET_C(15 downto 0));
             staging   <= (others => (others => '0'));
         elsif rising_edge(clk_i) then
@@ -736,10 +760,14 @@ begin
                 stop_miss <= reg_wdata_i(OMNI_CFG_STOP_ON_MISSING_C);
             end if;
             if wr_k = '1' then
-                k_reg <= unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto OMNI_SYNC_K_K_LO_C));
+                k_reg  <= unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto OMNI_SYNC_K_K_LO_C));
+                k_last <= last_of(unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto
+                                                       OMNI_SYNC_K_K_LO_C)));
             end if;
             if wr_poll = '1' then
-                m_reg <= unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto OMNI_POLL_M_LO_C));
+                m_reg  <= unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto OMNI_POLL_M_LO_C));
+                m_last <= last_of(unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto
+                                                       OMNI_POLL_M_LO_C)));
             end if;
             if wr_qwin = '1' then
                 qwin_reg <= unsigned(reg_wdata_i(OMNI_QUERY_WIN_US_HI_C downto
@@ -837,7 +865,7 @@ begin
             rx_reply_q <= '0';
             rx_unexp_q <= '0';
             ev_q       <= '0';
-            cnt        <= (others => (others => '0'));
+            cnt_inc    <= (others => '0');
         elsif rising_edge(clk_i) then
             inc_v      := (others => 0);
             rx_done_q  <= '0';
@@ -884,12 +912,12 @@ begin
             elsif cycle_i = '1' then
                 cyc_cnt    <= cyc_cnt + 1;
                 first_seen <= '1';
-                if k_reg <= 1 or kmod >= k_reg - 1 then
+                if kmod >= k_last then
                     kmod <= (others => '0');
                 else
                     kmod <= kmod + 1;
                 end if;
-                if m_reg = 0 or pmod >= m_reg - 1 then
+                if pmod >= m_last then
                     pmod <= (others => '0');
                 else
                     pmod <= pmod + 1;
@@ -1229,12 +1257,16 @@ begin
 
             -- -------------------------------------------------------------------- counters
 
+            -- amounts to the counter bank, one cycle later; a clear drops the events of its
+            -- own cycle (the bank drops the amounts presented in the clear cycle)
             for i in 0 to cnt_num_c - 1 loop
 
                 if clr = '1' then
-                    cnt(i) <= (others => '0');
-                elsif inc_v(i) /= 0 then
-                    cnt(i) <= sat_add(cnt(i), inc_v(i));
+                    cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
+                        <= (others => '0');
+                else
+                    cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
+                        <= std_logic_vector(to_unsigned(inc_v(i), cnt_inc_bits_c));
                 end if;
 
             end loop;
@@ -1423,7 +1455,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (alive, bc4x2, cfg_err, cnt, cyc_cnt, enable_i, f_bits, feasible, fr_q,
+    read_mux_proc : process (alive, bc4x2, cfg_err, cyc_cnt, enable_i, f_bits, feasible, fr_q,
                              k_reg, m_reg, master_id, missing, n_axes, nmt_due, par_dlc, par_due,
                              par_hi, par_lo, par_node, par_type, pending, pmb_any, pmb_dlc, pmb_hi,
                              pmb_lo, pmb_new, pmb_ovr, pmb_sender, pmb_type, q_open, qwin_reg,
@@ -1541,12 +1573,6 @@ begin
         put(off_bits_c, at(std_logic_vector(f_bits), OMNI_BUS_BITS_BITS_HI_C,
                            OMNI_BUS_BITS_BITS_LO_C));
 
-        for i in 0 to cnt_num_c - 1 loop
-
-            put(off_cnt_c + i, std_logic_vector(cnt(i)));
-
-        end loop;
-
         rd_mux <= v;
 
     end process read_mux_proc;
@@ -1556,15 +1582,45 @@ begin
 
         if rising_edge(clk_i) then
             rdata_q <= rd_mux;
+            -- OMNI_CNT_FB_RX .. OMNI_CNT_PARAM_RX: the counter bank's registered read
+            if unsigned(reg_addr_i) >= off_cnt_c
+               and unsigned(reg_addr_i) < off_cnt_c + cnt_num_c then
+                cnt_sel_q <= '1';
+            else
+                cnt_sel_q <= '0';
+            end if;
         end if;
 
     end process rd_data_proc;
 
     -- ---------------------------------------------------------------------------------------------
+    -- Counters: nine 32-bit saturating counters in block RAM, one shared incrementer. Read lag:
+    -- an event of cycle e is shown by every read with the address in cycle e + 13 or later
+    -- (amounts registered here: + 1; the bank: S + 3 = 12 with S = 9); docs/omni_engine.md
+    -- ---------------------------------------------------------------------------------------------
+    cnt_ra <= std_logic_vector(resize(unsigned(reg_addr_i) - off_cnt_c, 4));
+
+    cnt_bank_inst : entity work.canopen_counter_bank
+        generic map (
+            N_CNT    => cnt_num_c,
+            CNT_BITS => 32,
+            INC_BITS => cnt_inc_bits_c
+        )
+        port map (
+            clk_i     => clk_i,
+            rst_n_i   => rst_n_i,
+            inc_i     => cnt_inc,
+            clr_i     => clr,
+            rd_addr_i => cnt_ra,
+            rd_data_o => cnt_q
+        );
+
+    -- ---------------------------------------------------------------------------------------------
     -- Outputs
     -- ---------------------------------------------------------------------------------------------
     feasible_o      <= feasible;
-    reg_rdata_o     <= rdata_q;
+    reg_rdata_o     <= cnt_q when cnt_sel_q = '1' else
+                       rdata_q;
     rx_done_o       <= rx_done_q;
     rx_reply_o      <= rx_reply_q;
     rx_unexpected_o <= rx_unexp_q;
