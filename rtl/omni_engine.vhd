@@ -470,6 +470,11 @@ architecture rtl of omni_engine is
     signal m_fb_idx  : natural range 0 to N_SLOTS - 1;
     signal m_rep_any : std_logic;
     signal m_rep_idx : natural range 0 to N_SLOTS - 1;
+    -- the same on the frame at rx_*_i (registered into m_* with the frame)
+    signal mi_fb_any  : std_logic;
+    signal mi_fb_idx  : natural range 0 to N_SLOTS - 1;
+    signal mi_rep_any : std_logic;
+    signal mi_rep_idx : natural range 0 to N_SLOTS - 1;
     -- classes in S_RX_MATCH (enabled only)
     signal c_store : std_logic;
     signal c_len   : std_logic;
@@ -640,12 +645,38 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Receive classification
     -- ---------------------------------------------------------------------------------------------
+    -- slot search on the frame being handed over (registered with it: the compares of the
+    -- node table are not in the path of the classification and the SEQ / LEN_ERR update)
+    slot_match_proc : process (rx_data_i, rx_id_i, s_fc, s_node, s_valid) is
+    begin
+
+        mi_fb_any  <= '0';
+        mi_fb_idx  <= 0;
+        mi_rep_any <= '0';
+        mi_rep_idx <= 0;
+
+        for k in N_SLOTS - 1 downto 0 loop
+
+            if s_valid(k) = '1' and s_node(k) = rx_data_i(7 downto 0)
+               and s_fc(k) = rx_id_i(10 downto 8) then
+                mi_fb_any <= '1';
+                mi_fb_idx <= k;
+            end if;
+
+            if s_valid(k) = '1' and s_node(k) = rx_id_i(7 downto 0) then
+                mi_rep_any <= '1';
+                mi_rep_idx <= k;
+            end if;
+
+        end loop;
+
+    end process slot_match_proc;
+
     match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_data_q, rx_dlc_q,
-                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_fc, s_len, s_node, s_seq, s_valid) is
+                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_len, s_seq) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
-        variable b0_v   : std_logic_vector(7 downto 0);
         variable pd_v   : boolean;
         variable seq_v  : unsigned(15 downto 0);
         variable len_v  : unsigned(15 downto 0);
@@ -654,27 +685,7 @@ begin
 
         fc_v   := rx_id_q(10 downto 8);
         node_v := rx_id_q(7 downto 0);
-        b0_v   := rx_data_q(7 downto 0);
         pd_v   := fc_v = "010" or fc_v = "011" or fc_v = "101" or fc_v = "110";
-
-        m_fb_any  <= '0';
-        m_fb_idx  <= 0;
-        m_rep_any <= '0';
-        m_rep_idx <= 0;
-
-        for k in N_SLOTS - 1 downto 0 loop
-
-            if s_valid(k) = '1' and s_node(k) = b0_v and s_fc(k) = fc_v then
-                m_fb_any <= '1';
-                m_fb_idx <= k;
-            end if;
-
-            if s_valid(k) = '1' and s_node(k) = node_v then
-                m_rep_any <= '1';
-                m_rep_idx <= k;
-            end if;
-
-        end loop;
 
         c_store <= '0';
         c_len   <= '0';
@@ -861,6 +872,10 @@ begin
             pmb_ovr    <= '0';
             pmb_any    <= '0';
             rx_st      <= S_RX_IDLE;
+            m_fb_any   <= '0';
+            m_fb_idx   <= 0;
+            m_rep_any  <= '0';
+            m_rep_idx  <= 0;
             rx_done_q  <= '0';
             rx_reply_q <= '0';
             rx_unexp_q <= '0';
@@ -1107,7 +1122,11 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        rx_st <= S_RX_MATCH;
+                        rx_st     <= S_RX_MATCH;
+                        m_fb_any  <= mi_fb_any;
+                        m_fb_idx  <= mi_fb_idx;
+                        m_rep_any <= mi_rep_any;
+                        m_rep_idx <= mi_rep_idx;
                     end if;
 
                 when S_RX_MATCH =>
@@ -1468,12 +1487,20 @@ begin
         -- node-ID of the lowest missing slot (0: none)
         variable miss_node : std_logic_vector(7 downto 0);
 
+        -- AND-OR form (not a chain of conditional assignments): the synthesis tree stays
+        -- balanced
+
         procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
+
+            variable m : std_logic_vector(31 downto 0);
+
         begin
 
+            m := (others => '0');
             if is_off(a, n) then
-                v := v or word;
+                m := (others => '1');
             end if;
+            v := v or (word and m);
 
         end procedure put;
 
@@ -1527,14 +1554,6 @@ begin
                     or at(s_fc(k), OMNI_SLOT_CFG_FC_HI_C, OMNI_SLOT_CFG_FC_LO_C)
                     or at(s_valid(k), OMNI_SLOT_CFG_VALID_C)
                     or at(s_dlc(k), OMNI_SLOT_CFG_DLC_HI_C, OMNI_SLOT_CFG_DLC_LO_C));
-                if snap_ok = '1' then
-                    put(off_fblo_c, fr_q(31 downto 0));
-                    put(off_fbhi_c, fr_q(63 downto 32));
-                    put(off_fbinfo_c,
-                        at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
-                        or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C,
-                                 OMNI_FB_INFO_CYCLE_LO_C));
-                end if;
                 put(off_serr_c,
                     at(std_logic_vector(s_len(k)), OMNI_SLOT_ERR_LEN_ERR_HI_C,
                           OMNI_SLOT_ERR_LEN_ERR_LO_C)
@@ -1543,6 +1562,15 @@ begin
             end if;
 
         end loop;
+
+        -- the snapshot of the selected slot (sel_slot < N_SLOTS when snap_ok = 1)
+        if snap_ok = '1' then
+            put(off_fblo_c, fr_q(31 downto 0));
+            put(off_fbhi_c, fr_q(63 downto 32));
+            put(off_fbinfo_c,
+                at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
+                or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C, OMNI_FB_INFO_CYCLE_LO_C));
+        end if;
 
         put(off_fbnew_c, at(s_new, N_SLOTS - 1, 0));
         put(off_alive_c, at(alive, N_SLOTS - 1, 0));
