@@ -495,10 +495,15 @@ architecture rtl of omni_engine is
     -- Feasibility (pipelined: serial sum over the terms, products, compare)
     -- ---------------------------------------------------------------------------------------------
     signal f_idx    : natural range 0 to N_SLOTS + 1;
+    signal f_term   : natural range 0 to 255;
+    signal f_last   : std_logic;
     signal f_acc    : unsigned(15 downto 0);
     signal f_bits   : unsigned(15 downto 0);
     signal f_prod_a : unsigned(47 downto 0);
     signal f_prod_b : unsigned(47 downto 0);
+    -- per 12-bit chunk of the products: a < b, a = b
+    signal f_lt     : std_logic_vector(3 downto 0);
+    signal f_eq     : std_logic_vector(3 downto 0);
     signal feasible : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
@@ -809,6 +814,7 @@ begin
         variable ts_v      : std_logic;
         variable miss_v    : std_logic_vector(N_SLOTS - 1 downto 0);
         variable inc_v     : inc_arr_t;
+        variable amt_v     : unsigned(cnt_inc_bits_c - 1 downto 0);
         variable new_v     : std_logic;
         variable w_slot    : natural range 0 to 7;
         variable run_v     : boolean;
@@ -1280,13 +1286,12 @@ begin
             -- own cycle (the bank drops the amounts presented in the clear cycle)
             for i in 0 to cnt_num_c - 1 loop
 
+                amt_v := to_unsigned(inc_v(i), cnt_inc_bits_c);
                 if clr = '1' then
-                    cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
-                        <= (others => '0');
-                else
-                    cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
-                        <= std_logic_vector(to_unsigned(inc_v(i), cnt_inc_bits_c));
+                    amt_v := (others => '0');
                 end if;
+                cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
+                    <= std_logic_vector(amt_v);
 
             end loop;
 
@@ -1424,10 +1429,14 @@ begin
 
         if rst_n_i = '0' then
             f_idx    <= 0;
+            f_term   <= 0;
+            f_last   <= '0';
             f_acc    <= (others => '0');
             f_bits   <= (others => '0');
             f_prod_a <= (others => '1');
             f_prod_b <= (others => '0');
+            f_lt     <= (others => '0');
+            f_eq     <= (others => '0');
             feasible <= '0';
         elsif rising_edge(clk_i) then
             term_v := 0;
@@ -1450,19 +1459,46 @@ begin
 
             end if;
 
+            -- the term is registered (with the last-term flag) and added one cycle later
+            f_term <= term_v;
             if f_idx = N_SLOTS + 1 then
-                f_bits <= f_acc + term_v;
-                f_acc  <= (others => '0');
+                f_last <= '1';
                 f_idx  <= 0;
             else
-                f_acc <= f_acc + term_v;
-                f_idx <= f_idx + 1;
+                f_last <= '0';
+                f_idx  <= f_idx + 1;
+            end if;
+
+            if f_last = '1' then
+                f_bits <= f_acc + f_term;
+                f_acc  <= (others => '0');
+            else
+                f_acc <= f_acc + f_term;
             end if;
 
             f_prod_a <= resize(f_bits * to_unsigned(ns_per_bit_c, 32), 48);
             f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(ns_per_us_c, 10), 48);
 
-            if f_prod_a <= f_prod_b and cfg_err = '0' then
+            -- compare in two stages: four 12-bit chunks (less than / equal) registered, then
+            -- combined from the top chunk down
+            for c in 0 to 3 loop
+
+                if f_prod_a(12 * c + 11 downto 12 * c) < f_prod_b(12 * c + 11 downto 12 * c) then
+                    f_lt(c) <= '1';
+                else
+                    f_lt(c) <= '0';
+                end if;
+                if f_prod_a(12 * c + 11 downto 12 * c) = f_prod_b(12 * c + 11 downto 12 * c) then
+                    f_eq(c) <= '1';
+                else
+                    f_eq(c) <= '0';
+                end if;
+
+            end loop;
+
+            if (f_lt(3) = '1' or (f_eq(3) = '1' and (f_lt(2) = '1' or (f_eq(2) = '1'
+                and (f_lt(1) = '1' or (f_eq(1) = '1' and (f_lt(0) = '1' or f_eq(0) = '1')))))))
+               and cfg_err = '0' then
                 feasible <= '1';
             else
                 feasible <= '0';
@@ -1497,9 +1533,11 @@ begin
         begin
 
             m := (others => '0');
+
             if is_off(a, n) then
                 m := (others => '1');
             end if;
+
             v := v or (word and m);
 
         end procedure put;
