@@ -144,7 +144,7 @@ architecture rtl of omni_engine is
     constant cnt_prx_c    : natural := 8;
     constant cnt_num_c    : natural := 9;
     -- bits of a counter's amount per cycle (OMNI_CNT_MISSED / NODE_MISSING: up to N_SLOTS = 8)
-    constant cnt_inc_bits_c : natural := 4;
+    constant inc_w_c : natural := 4;
 
     type nat_arr_t is array (natural range <>) of natural;
 
@@ -210,7 +210,7 @@ architecture rtl of omni_engine is
 
     type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
 
-    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** cnt_inc_bits_c - 1;
+    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** inc_w_c - 1;
 
     type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
 
@@ -340,12 +340,12 @@ architecture rtl of omni_engine is
     signal sync_mode : std_logic;
     signal stop_miss : std_logic;
     -- K, M, query window [us]
-    signal k_reg    : unsigned(15 downto 0);
-    signal m_reg    : unsigned(15 downto 0);
+    signal k_reg : unsigned(15 downto 0);
+    signal m_reg : unsigned(15 downto 0);
     -- K - 1 and M - 1 (16 bits, 0 for K, M <= 1), registered with K and M: the cycle-instant
     -- wrap compares kmod / pmod with a register, no subtractor in the path
-    signal k_last : unsigned(15 downto 0);
-    signal m_last : unsigned(15 downto 0);
+    signal k_last   : unsigned(15 downto 0);
+    signal m_last   : unsigned(15 downto 0);
     signal qwin_reg : unsigned(15 downto 0);
     -- N_AXES out of range for the layout
     signal cfg_err : std_logic;
@@ -533,7 +533,7 @@ architecture rtl of omni_engine is
     signal rdata_q : std_logic_vector(31 downto 0);
     -- counters (canopen_counter_bank): amounts of the events of the previous cycle, read
     -- address, the registered read is a counter, its read data
-    signal cnt_inc   : std_logic_vector(cnt_num_c * cnt_inc_bits_c - 1 downto 0);
+    signal cnt_inc   : std_logic_vector(cnt_num_c * inc_w_c - 1 downto 0);
     signal cnt_ra    : std_logic_vector(3 downto 0);
     signal cnt_sel_q : std_logic;
     signal cnt_q     : std_logic_vector(31 downto 0);
@@ -814,7 +814,7 @@ begin
         variable ts_v      : std_logic;
         variable miss_v    : std_logic_vector(N_SLOTS - 1 downto 0);
         variable inc_v     : inc_arr_t;
-        variable amt_v     : unsigned(cnt_inc_bits_c - 1 downto 0);
+        variable amt_v     : unsigned(inc_w_c - 1 downto 0);
         variable new_v     : std_logic;
         variable w_slot    : natural range 0 to 7;
         variable run_v     : boolean;
@@ -1286,12 +1286,11 @@ begin
             -- own cycle (the bank drops the amounts presented in the clear cycle)
             for i in 0 to cnt_num_c - 1 loop
 
-                amt_v := to_unsigned(inc_v(i), cnt_inc_bits_c);
+                amt_v := to_unsigned(inc_v(i), inc_w_c);
                 if clr = '1' then
                     amt_v := (others => '0');
                 end if;
-                cnt_inc(cnt_inc_bits_c * i + cnt_inc_bits_c - 1 downto cnt_inc_bits_c * i)
-                    <= std_logic_vector(amt_v);
+                cnt_inc(inc_w_c * i + inc_w_c - 1 downto inc_w_c * i) <= std_logic_vector(amt_v);
 
             end loop;
 
@@ -1424,6 +1423,7 @@ begin
     feas_proc : process (clk_i, rst_n_i) is
 
         variable term_v : natural range 0 to 255;
+        variable le_v   : std_logic;
 
     begin
 
@@ -1496,9 +1496,16 @@ begin
 
             end loop;
 
-            if (f_lt(3) = '1' or (f_eq(3) = '1' and (f_lt(2) = '1' or (f_eq(2) = '1'
-                and (f_lt(1) = '1' or (f_eq(1) = '1' and (f_lt(0) = '1' or f_eq(0) = '1')))))))
-               and cfg_err = '0' then
+            -- a <= b: from the lowest chunk up, a chunk less, or equal and the lower ones <=
+            le_v := f_lt(0) or f_eq(0);
+
+            for c in 1 to 3 loop
+
+                le_v := f_lt(c) or (f_eq(c) and le_v);
+
+            end loop;
+
+            if le_v = '1' and cfg_err = '0' then
                 feasible <= '1';
             else
                 feasible <= '0';
@@ -1670,7 +1677,7 @@ begin
         generic map (
             N_CNT    => cnt_num_c,
             CNT_BITS => 32,
-            INC_BITS => cnt_inc_bits_c
+            INC_BITS => inc_w_c
         )
         port map (
             clk_i     => clk_i,
