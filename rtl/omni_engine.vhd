@@ -143,6 +143,8 @@ architecture rtl of omni_engine is
     constant cnt_late_c   : natural := 7;
     constant cnt_prx_c    : natural := 8;
     constant cnt_num_c    : natural := 9;
+    -- bits of a counter's amount per cycle (OMNI_CNT_MISSED / NODE_MISSING: up to N_SLOTS = 8)
+    constant inc_w_c : natural := 4;
 
     type nat_arr_t is array (natural range <>) of natural;
 
@@ -208,9 +210,7 @@ architecture rtl of omni_engine is
 
     type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
 
-    type cnt_arr_t is array (0 to cnt_num_c - 1) of unsigned(31 downto 0);
-
-    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 8;
+    type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** inc_w_c - 1;
 
     type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
 
@@ -316,6 +316,19 @@ architecture rtl of omni_engine is
 
     end function wc_of;
 
+    -- the last value of a modulo-n count: n - 1, and 0 for n = 0 (acts as 1)
+
+    function last_of (n : unsigned(15 downto 0)) return unsigned is
+    begin
+
+        if n = 0 then
+            return to_unsigned(0, 16);
+        end if;
+
+        return n - 1;
+
+    end function last_of;
+
     -- ---------------------------------------------------------------------------------------------
     -- Configuration (host)
     -- ---------------------------------------------------------------------------------------------
@@ -327,8 +340,12 @@ architecture rtl of omni_engine is
     signal sync_mode : std_logic;
     signal stop_miss : std_logic;
     -- K, M, query window [us]
-    signal k_reg    : unsigned(15 downto 0);
-    signal m_reg    : unsigned(15 downto 0);
+    signal k_reg : unsigned(15 downto 0);
+    signal m_reg : unsigned(15 downto 0);
+    -- K - 1 and M - 1 (16 bits, 0 for K, M <= 1), registered with K and M: the cycle-instant
+    -- wrap compares kmod / pmod with a register, no subtractor in the path
+    signal k_last   : unsigned(15 downto 0);
+    signal m_last   : unsigned(15 downto 0);
     signal qwin_reg : unsigned(15 downto 0);
     -- N_AXES out of range for the layout
     signal cfg_err : std_logic;
@@ -453,6 +470,11 @@ architecture rtl of omni_engine is
     signal m_fb_idx  : natural range 0 to N_SLOTS - 1;
     signal m_rep_any : std_logic;
     signal m_rep_idx : natural range 0 to N_SLOTS - 1;
+    -- the same on the frame at rx_*_i (registered into m_* with the frame)
+    signal mi_fb_any  : std_logic;
+    signal mi_fb_idx  : natural range 0 to N_SLOTS - 1;
+    signal mi_rep_any : std_logic;
+    signal mi_rep_idx : natural range 0 to N_SLOTS - 1;
     -- classes in S_RX_MATCH (enabled only)
     signal c_store : std_logic;
     signal c_len   : std_logic;
@@ -473,10 +495,15 @@ architecture rtl of omni_engine is
     -- Feasibility (pipelined: serial sum over the terms, products, compare)
     -- ---------------------------------------------------------------------------------------------
     signal f_idx    : natural range 0 to N_SLOTS + 1;
+    signal f_term   : natural range 0 to 255;
+    signal f_last   : std_logic;
     signal f_acc    : unsigned(15 downto 0);
     signal f_bits   : unsigned(15 downto 0);
     signal f_prod_a : unsigned(47 downto 0);
     signal f_prod_b : unsigned(47 downto 0);
+    -- per 12-bit chunk of the products: a < b, a = b
+    signal f_lt     : std_logic_vector(3 downto 0);
+    signal f_eq     : std_logic_vector(3 downto 0);
     signal feasible : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
@@ -504,7 +531,12 @@ architecture rtl of omni_engine is
     -- read multiplexer and its register; counters
     signal rd_mux  : std_logic_vector(31 downto 0);
     signal rdata_q : std_logic_vector(31 downto 0);
-    signal cnt     : cnt_arr_t;
+    -- counters (canopen_counter_bank): amounts of the events of the previous cycle, read
+    -- address, the registered read is a counter, its read data
+    signal cnt_inc   : std_logic_vector(cnt_num_c * inc_w_c - 1 downto 0);
+    signal cnt_ra    : std_logic_vector(3 downto 0);
+    signal cnt_sel_q : std_logic;
+    signal cnt_q     : std_logic_vector(31 downto 0);
 
 begin
 
@@ -618,12 +650,38 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Receive classification
     -- ---------------------------------------------------------------------------------------------
+    -- slot search on the frame being handed over (registered with it: the compares of the
+    -- node table are not in the path of the classification and the SEQ / LEN_ERR update)
+    slot_match_proc : process (rx_data_i, rx_id_i, s_fc, s_node, s_valid) is
+    begin
+
+        mi_fb_any  <= '0';
+        mi_fb_idx  <= 0;
+        mi_rep_any <= '0';
+        mi_rep_idx <= 0;
+
+        for k in N_SLOTS - 1 downto 0 loop
+
+            if s_valid(k) = '1' and s_node(k) = rx_data_i(7 downto 0)
+               and s_fc(k) = rx_id_i(10 downto 8) then
+                mi_fb_any <= '1';
+                mi_fb_idx <= k;
+            end if;
+
+            if s_valid(k) = '1' and s_node(k) = rx_id_i(7 downto 0) then
+                mi_rep_any <= '1';
+                mi_rep_idx <= k;
+            end if;
+
+        end loop;
+
+    end process slot_match_proc;
+
     match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_data_q, rx_dlc_q,
-                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_fc, s_len, s_node, s_seq, s_valid) is
+                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_len, s_seq) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
-        variable b0_v   : std_logic_vector(7 downto 0);
         variable pd_v   : boolean;
         variable seq_v  : unsigned(15 downto 0);
         variable len_v  : unsigned(15 downto 0);
@@ -632,27 +690,7 @@ begin
 
         fc_v   := rx_id_q(10 downto 8);
         node_v := rx_id_q(7 downto 0);
-        b0_v   := rx_data_q(7 downto 0);
         pd_v   := fc_v = "010" or fc_v = "011" or fc_v = "101" or fc_v = "110";
-
-        m_fb_any  <= '0';
-        m_fb_idx  <= 0;
-        m_rep_any <= '0';
-        m_rep_idx <= 0;
-
-        for k in N_SLOTS - 1 downto 0 loop
-
-            if s_valid(k) = '1' and s_node(k) = b0_v and s_fc(k) = fc_v then
-                m_fb_any <= '1';
-                m_fb_idx <= k;
-            end if;
-
-            if s_valid(k) = '1' and s_node(k) = node_v then
-                m_rep_any <= '1';
-                m_rep_idx <= k;
-            end if;
-
-        end loop;
 
         c_store <= '0';
         c_len   <= '0';
@@ -723,7 +761,9 @@ begin
             sync_mode <= '0';
             stop_miss <= '0';
             k_reg     <= unsigned(OMNI_SYNC_K_RESET_C(15 downto 0));
+            k_last    <= last_of(unsigned(OMNI_SYNC_K_RESET_C(15 downto 0)));
             m_reg     <= (others => '0');
+            m_last    <= (others => '0');
             qwin_reg  <= unsigned(OMNI_QUERY_WIN_RESET_C(15 downto 0));
             staging   <= (others => (others => '0'));
         elsif rising_edge(clk_i) then
@@ -736,10 +776,14 @@ begin
                 stop_miss <= reg_wdata_i(OMNI_CFG_STOP_ON_MISSING_C);
             end if;
             if wr_k = '1' then
-                k_reg <= unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto OMNI_SYNC_K_K_LO_C));
+                k_reg  <= unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto OMNI_SYNC_K_K_LO_C));
+                k_last <= last_of(unsigned(reg_wdata_i(OMNI_SYNC_K_K_HI_C downto
+                                                       OMNI_SYNC_K_K_LO_C)));
             end if;
             if wr_poll = '1' then
-                m_reg <= unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto OMNI_POLL_M_LO_C));
+                m_reg  <= unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto OMNI_POLL_M_LO_C));
+                m_last <= last_of(unsigned(reg_wdata_i(OMNI_POLL_M_HI_C downto
+                                                       OMNI_POLL_M_LO_C)));
             end if;
             if wr_qwin = '1' then
                 qwin_reg <= unsigned(reg_wdata_i(OMNI_QUERY_WIN_US_HI_C downto
@@ -770,6 +814,7 @@ begin
         variable ts_v      : std_logic;
         variable miss_v    : std_logic_vector(N_SLOTS - 1 downto 0);
         variable inc_v     : inc_arr_t;
+        variable amt_v     : unsigned(inc_w_c - 1 downto 0);
         variable new_v     : std_logic;
         variable w_slot    : natural range 0 to 7;
         variable run_v     : boolean;
@@ -833,11 +878,15 @@ begin
             pmb_ovr    <= '0';
             pmb_any    <= '0';
             rx_st      <= S_RX_IDLE;
+            m_fb_any   <= '0';
+            m_fb_idx   <= 0;
+            m_rep_any  <= '0';
+            m_rep_idx  <= 0;
             rx_done_q  <= '0';
             rx_reply_q <= '0';
             rx_unexp_q <= '0';
             ev_q       <= '0';
-            cnt        <= (others => (others => '0'));
+            cnt_inc    <= (others => '0');
         elsif rising_edge(clk_i) then
             inc_v      := (others => 0);
             rx_done_q  <= '0';
@@ -884,12 +933,12 @@ begin
             elsif cycle_i = '1' then
                 cyc_cnt    <= cyc_cnt + 1;
                 first_seen <= '1';
-                if k_reg <= 1 or kmod >= k_reg - 1 then
+                if kmod >= k_last then
                     kmod <= (others => '0');
                 else
                     kmod <= kmod + 1;
                 end if;
-                if m_reg = 0 or pmod >= m_reg - 1 then
+                if pmod >= m_last then
                     pmod <= (others => '0');
                 else
                     pmod <= pmod + 1;
@@ -1079,7 +1128,11 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        rx_st <= S_RX_MATCH;
+                        rx_st     <= S_RX_MATCH;
+                        m_fb_any  <= mi_fb_any;
+                        m_fb_idx  <= mi_fb_idx;
+                        m_rep_any <= mi_rep_any;
+                        m_rep_idx <= mi_rep_idx;
                     end if;
 
                 when S_RX_MATCH =>
@@ -1229,13 +1282,15 @@ begin
 
             -- -------------------------------------------------------------------- counters
 
+            -- amounts to the counter bank, one cycle later; a clear drops the events of its
+            -- own cycle (the bank drops the amounts presented in the clear cycle)
             for i in 0 to cnt_num_c - 1 loop
 
+                amt_v := to_unsigned(inc_v(i), inc_w_c);
                 if clr = '1' then
-                    cnt(i) <= (others => '0');
-                elsif inc_v(i) /= 0 then
-                    cnt(i) <= sat_add(cnt(i), inc_v(i));
+                    amt_v := (others => '0');
                 end if;
+                cnt_inc(inc_w_c * i + inc_w_c - 1 downto inc_w_c * i) <= std_logic_vector(amt_v);
 
             end loop;
 
@@ -1368,15 +1423,20 @@ begin
     feas_proc : process (clk_i, rst_n_i) is
 
         variable term_v : natural range 0 to 255;
+        variable le_v   : std_logic;
 
     begin
 
         if rst_n_i = '0' then
             f_idx    <= 0;
+            f_term   <= 0;
+            f_last   <= '0';
             f_acc    <= (others => '0');
             f_bits   <= (others => '0');
             f_prod_a <= (others => '1');
             f_prod_b <= (others => '0');
+            f_lt     <= (others => '0');
+            f_eq     <= (others => '0');
             feasible <= '0';
         elsif rising_edge(clk_i) then
             term_v := 0;
@@ -1399,19 +1459,53 @@ begin
 
             end if;
 
+            -- the term is registered (with the last-term flag) and added one cycle later
+            f_term <= term_v;
             if f_idx = N_SLOTS + 1 then
-                f_bits <= f_acc + term_v;
-                f_acc  <= (others => '0');
+                f_last <= '1';
                 f_idx  <= 0;
             else
-                f_acc <= f_acc + term_v;
-                f_idx <= f_idx + 1;
+                f_last <= '0';
+                f_idx  <= f_idx + 1;
+            end if;
+
+            if f_last = '1' then
+                f_bits <= f_acc + f_term;
+                f_acc  <= (others => '0');
+            else
+                f_acc <= f_acc + f_term;
             end if;
 
             f_prod_a <= resize(f_bits * to_unsigned(ns_per_bit_c, 32), 48);
             f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(ns_per_us_c, 10), 48);
 
-            if f_prod_a <= f_prod_b and cfg_err = '0' then
+            -- compare in two stages: four 12-bit chunks (less than / equal) registered, then
+            -- combined from the top chunk down
+            for c in 0 to 3 loop
+
+                if f_prod_a(12 * c + 11 downto 12 * c) < f_prod_b(12 * c + 11 downto 12 * c) then
+                    f_lt(c) <= '1';
+                else
+                    f_lt(c) <= '0';
+                end if;
+                if f_prod_a(12 * c + 11 downto 12 * c) = f_prod_b(12 * c + 11 downto 12 * c) then
+                    f_eq(c) <= '1';
+                else
+                    f_eq(c) <= '0';
+                end if;
+
+            end loop;
+
+            -- a <= b: from the lowest chunk up, a chunk less, or equal and the lower ones <=
+            le_v := f_lt(0) or f_eq(0);
+
+            for c in 1 to 3 loop
+
+                le_v := f_lt(c) or (f_eq(c) and le_v);
+
+            end loop;
+
+            if le_v = '1' and cfg_err = '0' then
                 feasible <= '1';
             else
                 feasible <= '0';
@@ -1423,7 +1517,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (alive, bc4x2, cfg_err, cnt, cyc_cnt, enable_i, f_bits, feasible, fr_q,
+    read_mux_proc : process (alive, bc4x2, cfg_err, cyc_cnt, enable_i, f_bits, feasible, fr_q,
                              k_reg, m_reg, master_id, missing, n_axes, nmt_due, par_dlc, par_due,
                              par_hi, par_lo, par_node, par_type, pending, pmb_any, pmb_dlc, pmb_hi,
                              pmb_lo, pmb_new, pmb_ovr, pmb_sender, pmb_type, q_open, qwin_reg,
@@ -1436,12 +1530,22 @@ begin
         -- node-ID of the lowest missing slot (0: none)
         variable miss_node : std_logic_vector(7 downto 0);
 
+        -- AND-OR form (not a chain of conditional assignments): the synthesis tree stays
+        -- balanced
+
         procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
+
+            variable m : std_logic_vector(31 downto 0);
+
         begin
 
+            m := (others => '0');
+
             if is_off(a, n) then
-                v := v or word;
+                m := (others => '1');
             end if;
+
+            v := v or (word and m);
 
         end procedure put;
 
@@ -1495,14 +1599,6 @@ begin
                     or at(s_fc(k), OMNI_SLOT_CFG_FC_HI_C, OMNI_SLOT_CFG_FC_LO_C)
                     or at(s_valid(k), OMNI_SLOT_CFG_VALID_C)
                     or at(s_dlc(k), OMNI_SLOT_CFG_DLC_HI_C, OMNI_SLOT_CFG_DLC_LO_C));
-                if snap_ok = '1' then
-                    put(off_fblo_c, fr_q(31 downto 0));
-                    put(off_fbhi_c, fr_q(63 downto 32));
-                    put(off_fbinfo_c,
-                        at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
-                        or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C,
-                                 OMNI_FB_INFO_CYCLE_LO_C));
-                end if;
                 put(off_serr_c,
                     at(std_logic_vector(s_len(k)), OMNI_SLOT_ERR_LEN_ERR_HI_C,
                           OMNI_SLOT_ERR_LEN_ERR_LO_C)
@@ -1511,6 +1607,15 @@ begin
             end if;
 
         end loop;
+
+        -- the snapshot of the selected slot (sel_slot < N_SLOTS when snap_ok = 1)
+        if snap_ok = '1' then
+            put(off_fblo_c, fr_q(31 downto 0));
+            put(off_fbhi_c, fr_q(63 downto 32));
+            put(off_fbinfo_c,
+                at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
+                or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C, OMNI_FB_INFO_CYCLE_LO_C));
+        end if;
 
         put(off_fbnew_c, at(s_new, N_SLOTS - 1, 0));
         put(off_alive_c, at(alive, N_SLOTS - 1, 0));
@@ -1541,12 +1646,6 @@ begin
         put(off_bits_c, at(std_logic_vector(f_bits), OMNI_BUS_BITS_BITS_HI_C,
                            OMNI_BUS_BITS_BITS_LO_C));
 
-        for i in 0 to cnt_num_c - 1 loop
-
-            put(off_cnt_c + i, std_logic_vector(cnt(i)));
-
-        end loop;
-
         rd_mux <= v;
 
     end process read_mux_proc;
@@ -1556,15 +1655,45 @@ begin
 
         if rising_edge(clk_i) then
             rdata_q <= rd_mux;
+            -- OMNI_CNT_FB_RX .. OMNI_CNT_PARAM_RX: the counter bank's registered read
+            if unsigned(reg_addr_i) >= off_cnt_c
+               and unsigned(reg_addr_i) < off_cnt_c + cnt_num_c then
+                cnt_sel_q <= '1';
+            else
+                cnt_sel_q <= '0';
+            end if;
         end if;
 
     end process rd_data_proc;
 
     -- ---------------------------------------------------------------------------------------------
+    -- Counters: nine 32-bit saturating counters in block RAM, one shared incrementer. Read lag:
+    -- an event of cycle e is shown by every read with the address in cycle e + 13 or later
+    -- (amounts registered here: + 1; the bank: S + 3 = 12 with S = 9); docs/omni_engine.md
+    -- ---------------------------------------------------------------------------------------------
+    cnt_ra <= std_logic_vector(resize(unsigned(reg_addr_i) - off_cnt_c, 4));
+
+    cnt_bank_inst : entity work.canopen_counter_bank
+        generic map (
+            N_CNT    => cnt_num_c,
+            CNT_BITS => 32,
+            INC_BITS => inc_w_c
+        )
+        port map (
+            clk_i     => clk_i,
+            rst_n_i   => rst_n_i,
+            inc_i     => cnt_inc,
+            clr_i     => clr,
+            rd_addr_i => cnt_ra,
+            rd_data_o => cnt_q
+        );
+
+    -- ---------------------------------------------------------------------------------------------
     -- Outputs
     -- ---------------------------------------------------------------------------------------------
     feasible_o      <= feasible;
-    reg_rdata_o     <= rdata_q;
+    reg_rdata_o     <= cnt_q when cnt_sel_q = '1' else
+                       rdata_q;
     rx_done_o       <= rx_done_q;
     rx_reply_o      <= rx_reply_q;
     rx_unexpected_o <= rx_unexp_q;

@@ -46,6 +46,9 @@ SLAVES = oc.THESIS_SLAVE_IDS  # 0x04, 0x08, 0x10, 0x20
 FB_FC = oc.THESIS_FEEDBACK_FC
 RX_BOUND = 4
 RX_BOUND_QUERY = 6
+#: counter read lag (docs/omni_engine.md): an event counted at edge e shows in every read with
+#: the address on reg_addr_i CNT_LAG cycles later (amounts registered: 1, bank: S + 3, S = 9)
+CNT_LAG = 13
 
 
 def off(name: str) -> int:
@@ -150,6 +153,9 @@ class TB:
 
     async def read(self, name: str) -> int:
         dut = self.dut
+        if name.startswith("OMNI_CNT_"):
+            # counter bank read lag: an event of cycle e shows in reads from cycle e + CNT_LAG
+            await ClockCycles(dut.clk_i, CNT_LAG, rising=False)
         await FallingEdge(dut.clk_i)
         dut.reg_addr_i.value = off(name)
         await RisingEdge(dut.clk_i)
@@ -770,6 +776,93 @@ async def run_feasibility_crosscheck(dut):
                     boundary += 1
     dut._log.info("feasibility cross-check at %d bit/s: %d (configuration, period) cells, "
                   "%d boundaries", rate, checked, boundary)
+
+
+@cocotb.test(timeout_time=30, timeout_unit="ms")
+async def run_period_change_wraps(dut):
+    """Purpose: the cycle-instant wrap of k mod K and k mod M (compared with K - 1 / M - 1
+    registered at the host write) at the edges: K or M lowered below the current count, K = 0
+    acting as 1, M = 0 (no query).
+
+    Verifies: SYNC_MODE 1, K = 5 for cycles 0..2, then K = 2: cycle 3 is a broadcast (count 3),
+    the count wraps at that cycle instant (3 >= K - 1), so cycles 4, 6 are SYNC cycles and 5, 7
+    not (a wrap on equality would count on to 65535 and miss them); K = 0: every cycle a SYNC.
+    Queries: M = 4 for cycles 0..1 (query at 0), then M = 2: no query at cycle 2 (count 2),
+    wrap, queries at 3 and 5; M = 0: no query.
+    """
+    tb = TB(dut)
+    await tb.start(enable=False)
+    await tb.configure(n_axes=1, sender=False, sync_mode=True, k=5, m=4, qwin=1)
+    await tb.idle(2)
+    dut.enable_i.value = 1
+    await tb.idle(2)
+
+    async def run_cycle() -> tuple[bool, bool]:
+        start = len(tb.tx_log)
+        msg = await tb.cycle(gap=60)
+        queried = any(frame_key(r.msg) == frame_key(oc.node_query_frame())
+                      for r in tb.tx_log[start:])
+        return oc.is_omni_sync(msg), queried
+
+    got = [await run_cycle() for _ in range(2)]
+    await tb.write("OMNI_POLL", 2)
+    got.append(await run_cycle())
+    await tb.write("OMNI_SYNC_K", 2)
+    got += [await run_cycle() for _ in range(5)]
+    syncs = [g[0] for g in got]
+    polls = [g[1] for g in got]
+    assert syncs == [True, False, False, False, True, False, True, False], syncs
+    assert polls == [True, False, False, True, False, True, False, True], polls
+    await tb.write("OMNI_SYNC_K", 0)
+    await tb.write("OMNI_POLL", 0)
+    got = [await run_cycle() for _ in range(3)]
+    assert [g[0] for g in got] == [True] * 3, got
+    # the last cycle with M = 2 counted 1 -> the first with M = 0 wraps; M = 0 never polls
+    assert [g[1] for g in got] == [False] * 3, got
+
+
+async def read_every_cycle(tb: TB, name: str, cycles: int) -> list[int]:
+    """The register read with the address on reg_addr_i in each of ``cycles`` cycles."""
+    dut = tb.dut
+    vals = []
+    for _ in range(cycles):
+        await FallingEdge(dut.clk_i)
+        dut.reg_addr_i.value = off(name)
+        await RisingEdge(dut.clk_i)
+        await ReadOnly()
+        vals.append(int(dut.reg_rdata_o.value))
+    return vals
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_counter_read_lag(dut):
+    """Purpose: the counters in the counter bank keep every event and show it within the
+    documented read lag (CNT_LAG cycles); a clear reads 0 from the next cycle.
+
+    Verifies: per unexpected frame (counted at the edge after rx_done_o's), reads in every
+    cycle: never decreasing, the new count at the latest CNT_LAG cycles after the counting edge
+    and exactly the number of frames; 8 missed slots in one cycle instant count 8 at once
+    (amount 8 of the 4-bit amount); OMNI_CTRL.CLR_COUNTERS: 0 in the read of the next cycle.
+    """
+    tb = TB(dut)
+    await tb.start()
+    await tb.configure(n_axes=1, slots=[(0x10 + s, 2, 2) for s in range(tb.n_slots)])
+    last = 0
+    for n in range(1, 6):
+        await tb.rx(oc.omni_sync_frame())
+        vals = await read_every_cycle(tb, "OMNI_CNT_UNEXPECTED", CNT_LAG + 2)
+        assert all(a <= b for a, b in zip(vals, vals[1:])), vals
+        assert vals[0] >= last and vals[CNT_LAG - 1] == n and vals[-1] == n, (n, vals)
+        last = n
+    # cycle 0 not checked, cycle 1: every slot missed at the second cycle_i
+    await tb.cycle()
+    await tb.cycle()
+    vals = await read_every_cycle(tb, "OMNI_CNT_MISSED", CNT_LAG + 2)
+    assert vals[-1] == tb.n_slots, vals
+    await tb.write("OMNI_CTRL", R.OMNI_CTRL_CLR_COUNTERS)
+    vals = await read_every_cycle(tb, "OMNI_CNT_MISSED", CNT_LAG + 2)
+    assert vals == [0] * (CNT_LAG + 2), vals
+    assert (await read_every_cycle(tb, "OMNI_CNT_UNEXPECTED", 1)) == [0]
 
 
 @cocotb.test(timeout_time=10, timeout_unit="ms")
