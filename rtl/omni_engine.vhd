@@ -677,8 +677,8 @@ begin
 
     end process slot_match_proc;
 
-    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_data_q, rx_dlc_q,
-                          rx_id_q, rx_rtr_q, rx_st, s_dlc, s_len, s_seq) is
+    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_dlc_q, rx_id_q,
+                          rx_rtr_q, rx_st, s_dlc, s_len, s_seq) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
