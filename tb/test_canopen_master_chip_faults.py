@@ -380,6 +380,35 @@ async def check_flood_received(tb: SystemTB, t_from: int, cnt0: dict[str, int]) 
     assert dwell <= ST12_BOUND_US, f"St12 held {dwell:.1f} us (bound {ST12_BOUND_US} us)"
 
 
+async def sdo_upload_outcome(tb: SystemTB, node: int, timeout_ms: int, chan: int = 0):
+    """The transfer's exception (None on success) and the time its DONE was seen."""
+    try:
+        await tb.host.sdo_upload(node, 0x1000, 0, timeout_ms=timeout_ms, chan=chan)
+    except Exception as e:  # noqa: BLE001 - the outcome is checked by the caller
+        return e, sim_time_ps()
+    return None, sim_time_ps()
+
+
+async def wait_request_in_txb1(tb: SystemTB) -> None:
+    """Until the chip shows TXB1 (the SDO request's buffer) requested."""
+    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
+                      "SDO request in TXB1")
+
+
+async def forge_while_request_waits(tb: SystemTB, n_flood: int, data: bytes):
+    """A flood of ``n_flood`` 0-byte frames (id 110h) keeps channel 0's upload request to node 2
+    in TXB1; a forged response 582h with ``data`` goes out third in the flood. Returns the
+    transfer's outcome (sdo_upload_outcome) 1 ms after the flood."""
+    tb.raw.send(*flood(n_flood, FLOOD_ID_SDO))
+    xfer = cocotb.start_soon(sdo_upload_outcome(tb, 2, 100))
+    await wait_request_in_txb1(tb)
+    forged = can.Message(arbitration_id=0x582, is_extended_id=False, data=data)
+    tb.raw.queue.insert(2, forged)
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    await Timer(1_000, "us")
+    return await xfer
+
+
 @cocotb.test(timeout_time=100, timeout_unit="ms")
 async def run_rx_kept_while_sdo_reply_waits(dut):
     """Purpose: the master keeps receiving while an SDO reply waits for TXB1 (fuzz finding 2).
@@ -399,24 +428,7 @@ async def run_rx_kept_while_sdo_reply_waits(dut):
     await boot_quiet(tb)
     cnt0 = await tb.host.counters()
     t0 = sim_time_ps()
-    tb.raw.send(*flood(64, FLOOD_ID_SDO))
-
-    async def upload() -> Exception | None:
-        try:
-            await tb.host.sdo_upload(2, 0x1000, 0, timeout_ms=100)
-        except Exception as e:  # noqa: BLE001 - the outcome is checked below
-            return e
-        return None
-
-    xfer = cocotb.start_soon(upload())
-    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
-                      "SDO request in TXB1")
-    forged = can.Message(arbitration_id=0x582, is_extended_id=False,
-                         data=bytes([0xE0, 0, 0x10, 0, 0, 0, 0, 0]))
-    tb.raw.queue.insert(2, forged)
-    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
-    await Timer(1_000, "us")
-    exc = await xfer
+    exc, _ = await forge_while_request_waits(tb, 64, bytes([0xE0, 0, 0x10, 0, 0, 0, 0, 0]))
     assert isinstance(exc, SdoAbort), f"the transfer ended with {exc!r}"
     assert exc.code == 0x05040001 and exc.sent_by_client, exc
     # fuzz finding 3: the request of the ended transfer was cancelled in TXB1, only the abort
@@ -436,15 +448,6 @@ async def run_rx_kept_while_sdo_reply_waits(dut):
 SRV_ABORT_DONE_US = 500
 
 
-async def sdo_upload_outcome(tb: SystemTB, node: int, timeout_ms: int, chan: int = 0):
-    """The transfer's exception (None on success) and the time its DONE was seen."""
-    try:
-        await tb.host.sdo_upload(node, 0x1000, 0, timeout_ms=timeout_ms, chan=chan)
-    except Exception as e:  # noqa: BLE001 - the outcome is checked by the caller
-        return e, sim_time_ps()
-    return None, sim_time_ps()
-
-
 @cocotb.test(timeout_time=100, timeout_unit="ms")
 async def run_sdo_request_withdrawn_after_server_abort(dut):
     """Purpose: a transfer ended by a server abort leaves no request behind (fuzz finding 3).
@@ -461,16 +464,8 @@ async def run_sdo_request_withdrawn_after_server_abort(dut):
     await boot_quiet(tb)
     cnt0 = await tb.host.counters()
     t0 = sim_time_ps()
-    tb.raw.send(*flood(96, FLOOD_ID_SDO))
-    xfer = cocotb.start_soon(sdo_upload_outcome(tb, 2, 100))
-    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
-                      "SDO request in TXB1")
-    forged = can.Message(arbitration_id=0x582, is_extended_id=False,
-                         data=bytes([0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x02, 0x06]))
-    tb.raw.queue.insert(2, forged)
-    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
-    await Timer(1_000, "us")
-    exc, t_done = await xfer
+    exc, t_done = await forge_while_request_waits(
+        tb, 96, bytes([0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x02, 0x06]))
     assert isinstance(exc, SdoAbort), f"the transfer ended with {exc!r}"
     assert exc.code == 0x06020000 and not exc.sent_by_client, exc
     sdo = [r for r in tb.frames(0x602) if r.t_start_ps >= t0]
@@ -509,8 +504,7 @@ async def run_sdo_request_withdrawn_after_timeout(dut):
     t0 = sim_time_ps()
     tb.raw.send(*flood(160, FLOOD_ID_SDO))
     xfer0 = cocotb.start_soon(sdo_upload_outcome(tb, 2, 2, chan=0))
-    await tb.wait_for(lambda: tb.chip.peek(MR.TXB1CTRL) & MR.TXBNCTRL_TXREQ, 1_000, 2,
-                      "SDO request in TXB1")
+    await wait_request_in_txb1(tb)
     t_start = sim_time_ps()
     xfer1 = cocotb.start_soon(sdo_upload_outcome(tb, 1, 50, chan=1))
     exc0, t_done0 = await xfer0
