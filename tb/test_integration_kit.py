@@ -181,7 +181,7 @@ def test_fusesoc_sim_target_runs(tmp_path):
     res = _run_sim_target(ROOT, tmp_path / "build")
     out = res.stdout + res.stderr
     assert res.returncode == 0, out[-3000:]
-    assert "canopen_master_smoke_tb: PASS (init failure reported at 477.85 us)" in out, out[-3000:]
+    assert "canopen_master_smoke_tb: PASS (init failure reported at 477.65 us)" in out, out[-3000:]
 
 
 def test_fusesoc_sim_target_can_fail(tmp_path):
