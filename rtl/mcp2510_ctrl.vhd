@@ -166,6 +166,10 @@ architecture rtl of mcp2510_ctrl is
                                                 / CAN_BITRATE_BPS);
     constant abort_polls_c : positive := 4;
     constant err_poll_c    : positive := us_to_cycles(ERR_POLL_US);
+    -- TX turnaround: after a TX-done the core gets this long to present the frame for the freed
+    -- buffer before an error poll may start (the poll would lengthen the bus gap between two
+    -- frames of one buffer by its 5 + 3 bytes of SPI); 2 us covers the core's FSM path
+    constant tx_turn_c : positive := us_to_cycles(2);
     constant timer_max_c   : positive := reset_wait_c + mode_poll_c + abort_wait_c;
 
     function check_config return boolean is
@@ -395,6 +399,8 @@ architecture rtl of mcp2510_ctrl is
     -- error poll: due (interval over, or an error INT was handled), and the interval counter
     signal err_req : std_logic;
     signal err_cnt : natural range 0 to err_poll_c;
+    -- TX turnaround left (tx_turn_c), the poll waits while it runs
+    signal turn_cnt : natural range 0 to tx_turn_c;
     -- destroyed frames of this node from TEC steps: TEC of the last poll (0 after RESET), and
     -- the errors still to report on tx_errors_o (one strobe per cycle)
     signal tec_base : unsigned(7 downto 0);
@@ -815,6 +821,7 @@ begin
             txb_loaded     <= (others => '0');
             err_req        <= '0';
             err_cnt        <= err_poll_c;
+            turn_cnt       <= 0;
             err_valid_o    <= '0';
             abort_req      <= '0';
             cancel_op      <= '0';
@@ -859,6 +866,9 @@ begin
             end if;
             if blank_cnt /= 0 then
                 blank_cnt <= blank_cnt - 1;
+            end if;
+            if turn_cnt /= 0 then
+                turn_cnt <= turn_cnt - 1;
             end if;
             pending <= pending or fire_set;
             -- the error poll falls due every ERR_POLL_US (counted from the last one)
@@ -1010,8 +1020,9 @@ begin
 
                         end loop;
 
+                        turn_cnt <= 0;
                         go(S_TX_LOAD);
-                    elsif err_req = '1' then
+                    elsif err_req = '1' and turn_cnt = 0 then
                         err_req <= '0';
                         err_cnt <= err_poll_c;
                         go(S_ERR_CNT);
@@ -1103,6 +1114,9 @@ begin
                         pend_v        := intf_q(4 downto 2);
                         tx_done_o     <= pend_v;
                         pending       <= (pending and not pend_v) or fire_set;
+                        if pend_v /= "000" then
+                            turn_cnt <= tx_turn_c;
+                        end if;
                         tx_err_o      <= txerr_acc;
                         tx_arb_lost_o <= mloa_acc;
                         int_valid_o   <= '1';
