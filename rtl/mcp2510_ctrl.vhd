@@ -169,8 +169,8 @@ architecture rtl of mcp2510_ctrl is
     -- TX turnaround: after a TX-done the core gets this long to present the frame for the freed
     -- buffer before an error poll may start (the poll would lengthen the bus gap between two
     -- frames of one buffer by its 5 + 3 bytes of SPI); 2 us covers the core's FSM path
-    constant tx_turn_c : positive := us_to_cycles(2);
-    constant timer_max_c   : positive := reset_wait_c + mode_poll_c + abort_wait_c;
+    constant tx_turn_c   : positive := us_to_cycles(2);
+    constant timer_max_c : positive := reset_wait_c + mode_poll_c + abort_wait_c;
 
     function check_config return boolean is
     begin
@@ -821,7 +821,6 @@ begin
             txb_loaded     <= (others => '0');
             err_req        <= '0';
             err_cnt        <= err_poll_c;
-            turn_cnt       <= 0;
             err_valid_o    <= '0';
             abort_req      <= '0';
             cancel_op      <= '0';
@@ -866,9 +865,6 @@ begin
             end if;
             if blank_cnt /= 0 then
                 blank_cnt <= blank_cnt - 1;
-            end if;
-            if turn_cnt /= 0 then
-                turn_cnt <= turn_cnt - 1;
             end if;
             pending <= pending or fire_set;
             -- the error poll falls due every ERR_POLL_US (counted from the last one)
@@ -1020,7 +1016,6 @@ begin
 
                         end loop;
 
-                        turn_cnt <= 0;
                         go(S_TX_LOAD);
                     elsif err_req = '1' and turn_cnt = 0 then
                         err_req <= '0';
@@ -1114,9 +1109,6 @@ begin
                         pend_v        := intf_q(4 downto 2);
                         tx_done_o     <= pend_v;
                         pending       <= (pending and not pend_v) or fire_set;
-                        if pend_v /= "000" then
-                            turn_cnt <= tx_turn_c;
-                        end if;
                         tx_err_o      <= txerr_acc;
                         tx_arb_lost_o <= mloa_acc;
                         int_valid_o   <= '1';
@@ -1583,6 +1575,28 @@ begin
         end if;
 
     end process terr_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- TX turnaround (tx_turn_c): armed when an INT sequence reports a TX-done, ended by the next
+    -- TX load; the error poll does not start while it runs (seq_proc, S_IDLE)
+    -- ---------------------------------------------------------------------------------------------
+    turn_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            turn_cnt <= 0;
+        elsif rising_edge(clk_i) then
+            if state = S_INT_CLEAR and issued = '1' and rsp_valid = '1'
+               and intf_q(4 downto 2) /= "000" then
+                turn_cnt <= tx_turn_c;
+            elsif state = S_TX_LOAD then
+                turn_cnt <= 0;
+            elsif turn_cnt /= 0 then
+                turn_cnt <= turn_cnt - 1;
+            end if;
+        end if;
+
+    end process turn_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- RX FIFO (first-word fall-through, block RAM). A frame is pushed 2 cycles before rx_valid_o
