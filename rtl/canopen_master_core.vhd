@@ -70,6 +70,7 @@ entity canopen_master_core is
         ctl_reinit_o    : out   std_logic;                    -- pulse: re-initialise
         ctl_init_done_i : in    std_logic;                    -- chip in normal mode
         ctl_init_fail_i : in    std_logic;                    -- initialisation failed
+        ctl_chip_lost_i : in    std_logic;                    -- strobe: chip reset found
         ctl_busy_i      : in    std_logic;                    -- SPI sequence running
         ctl_tec_i       : in    std_logic_vector(7 downto 0); -- live TEC (0 after RESET)
         ctl_rec_i       : in    std_logic_vector(7 downto 0); -- live REC (0 after RESET)
@@ -90,6 +91,7 @@ entity canopen_master_core is
         ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
         ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
         ctl_tx_err_i     : in    std_logic_vector(2 downto 0);  -- strobe: TXERR
+        ctl_tx_errors_i  : in    std_logic;                     -- strobe: own frame destroyed
         ctl_tx_drop_i    : in    std_logic_vector(2 downto 0);  -- strobe: fire not loaded
         -- mcp2510_ctrl: receive
         ctl_rx_valid_i : in    std_logic;                     -- FIFO head valid
@@ -271,6 +273,11 @@ architecture rtl of canopen_master_core is
     signal err_busoff : std_logic;
     signal err_reinit : std_logic;
     signal err_node   : std_logic;
+    -- the controller found the chip reset behind its back (CANSTAT.OPMOD not normal) and
+    -- re-initialises it by itself: St13 reports it, St0 (G1) waits for init_done without
+    -- asking for another RESET (chip_reinit, until St0 is entered)
+    signal err_chip    : std_logic;
+    signal chip_reinit : std_logic;
     -- state watchdog and St0 re-initialisation
     signal wd_us        : natural range 0 to WATCHDOG_US;
     signal backoff_us   : natural range 0 to backoff_us_c;
@@ -539,7 +546,7 @@ begin
     -- sync_due: in the cycle after a fire, sync_loaded is already 0 but the controller shows
     -- TXB2 pending only one cycle later: without sync_fire_q, St2..St12 could preload TXB2
     -- behind the SYNC just started and St12 wait for its transmission (fuzz finding 2)
-    err_pending   <= err_can or err_busoff or err_reinit or err_node;
+    err_pending   <= err_can or err_busoff or err_reinit or err_node or err_chip;
     sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
     om_preload_ok <= '1' when om_feasible = '1'
@@ -635,7 +642,7 @@ begin
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
     -- by the node monitor after a node error is sent right away (T28) if TXB1 is free, else
     -- from St1 (T22) once it is
-    err_fatal <= err_busoff or err_reinit;
+    err_fatal <= err_busoff or err_reinit or err_chip;
     err_nmt   <= err_node and mon_tx_req and not ctl_tx_pending_i(1);
 
     -- ---------------------------------------------------------------------------------------------
@@ -671,6 +678,8 @@ begin
             err_busoff       <= '0';
             err_reinit       <= '0';
             err_node         <= '0';
+            err_chip         <= '0';
+            chip_reinit      <= '0';
             wd_us            <= 0;
             backoff_us       <= 0;
             busoff_us        <= 0;
@@ -923,6 +932,10 @@ begin
             if host_reinit = '1' then
                 err_reinit <= '1';
             end if;
+            if ctl_chip_lost_i = '1' then
+                err_chip    <= '1';
+                chip_reinit <= '1';
+            end if;
             if ev_lost /= (ev_lost'range => '0') or ev_toggle /= (ev_toggle'range => '0') then
                 err_node <= '1';
             end if;
@@ -931,6 +944,7 @@ begin
                 err_busoff <= '0';
                 err_reinit <= '0';
                 err_node   <= '0';
+                err_chip   <= '0';
             end if;
 
             -- state watchdog: bounded waits (G4) ----------------------------------------------
@@ -942,9 +956,13 @@ begin
 
             -- St0: re-initialise the controller on entry from St13 (G1), and after a failed
             -- initialisation once the back-off time has passed (T1) -------------------------
-            if in_init = '1' and state_change = '1' and init_done_q = '1' then
+            if in_init = '1' and state_change = '1' and init_done_q = '1'
+               and chip_reinit = '0' then
                 reinit_pulse <= '1';
                 reinit_wait  <= '1';
+            end if;
+            if in_init = '1' and state_change = '1' then
+                chip_reinit <= '0';
             end if;
             if reinit_wait = '1' and reinit_pulse = '0' and ctl_init_done_i = '0' then
                 reinit_wait <= '0';
@@ -1001,7 +1019,7 @@ begin
 
     -- events and counters for the host block
     ev_node_any    <= or_reduce(ev_lost) or or_reduce(ev_toggle) or or_reduce(ev_bootup);
-    ev_can_error   <= in_error and (err_can or err_busoff);
+    ev_can_error   <= in_error and (err_can or err_busoff or err_chip);
     cnt_unexpected <= '1' when (in_rx = '1' and ctl_rx_valid_i = '1' and rx_head_ok = '0')
                                or (in_parse = '1' and cls_pdo = '0' and cls_sdo = '0'
                              and cls_nmt = '0')
@@ -1012,13 +1030,16 @@ begin
     ev_frame_error <= cnt_unexpected or cnt_malformed;
     cnt_rx_frame   <= rx_pop;
     cnt_tx_frame   <= or_reduce(ctl_tx_done_i);
-    cnt_tx_error   <= or_reduce(ctl_tx_err_i) or or_reduce(ctl_tx_drop_i);
-    cnt_can_error  <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
-    cnt_malformed  <= mon_rx_done and mon_rx_malformed;
-    cnt_hb_loss    <= or_reduce(ev_lost);
-    cnt_guard_err  <= or_reduce(ev_toggle);
-    ev_init        <= (ctl_init_done_i and not init_done_q)
-                      or (ctl_init_fail_i and not init_fail_q);
+    -- one per destroyed frame of the master (TEC steps, mcp2510_ctrl terr_proc), and refused
+    -- fires of an unloaded buffer
+    cnt_tx_error <= ctl_tx_errors_i or or_reduce(ctl_tx_drop_i);
+    -- error interrupts (ERRIF) and resets of the chip found by the error poll (chip lost)
+    cnt_can_error <= (ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c)) or ctl_chip_lost_i;
+    cnt_malformed <= mon_rx_done and mon_rx_malformed;
+    cnt_hb_loss   <= or_reduce(ev_lost);
+    cnt_guard_err <= or_reduce(ev_toggle);
+    ev_init       <= (ctl_init_done_i and not init_done_q)
+                     or (ctl_init_fail_i and not init_fail_q);
 
     -- ---------------------------------------------------------------------------------------------
     -- The FSM

@@ -76,6 +76,7 @@ architecture rtl of canopen_master_top is
     signal reinit      : std_logic;
     signal init_done   : std_logic;
     signal init_fail   : std_logic;
+    signal chip_lost   : std_logic;
     signal ctl_busy    : std_logic;
     signal tec         : std_logic_vector(7 downto 0);
     signal rec         : std_logic_vector(7 downto 0);
@@ -94,6 +95,7 @@ architecture rtl of canopen_master_top is
     signal tx_pending  : std_logic_vector(2 downto 0);
     signal tx_done     : std_logic_vector(2 downto 0);
     signal tx_err      : std_logic_vector(2 downto 0);
+    signal tx_errors   : std_logic;
     signal tx_drop     : std_logic_vector(2 downto 0);
     signal tx_loaded   : std_logic;
     signal rx_valid    : std_logic;
@@ -151,6 +153,7 @@ begin
             ctl_reinit_o        => reinit,
             ctl_init_done_i     => init_done,
             ctl_init_fail_i     => init_fail,
+            ctl_chip_lost_i     => chip_lost,
             ctl_busy_i          => ctl_busy,
             ctl_tec_i           => tec,
             ctl_rec_i           => rec,
@@ -170,6 +173,7 @@ begin
             ctl_tx_pending_i    => tx_pending,
             ctl_tx_done_i       => tx_done,
             ctl_tx_err_i        => tx_err,
+            ctl_tx_errors_i     => tx_errors,
             ctl_tx_drop_i       => tx_drop,
             ctl_rx_valid_i      => rx_valid,
             ctl_rx_ready_o      => rx_ready,
@@ -202,6 +206,7 @@ begin
             reinit_i         => reinit,
             init_done_o      => init_done,
             init_fail_o      => init_fail,
+            chip_lost_o      => chip_lost,
             busy_o           => ctl_busy,
             state_o          => ctrl_state_o,
             tx_valid_i       => tx_valid,
@@ -221,6 +226,7 @@ begin
             tx_pending_o     => tx_pending,
             tx_done_o        => tx_done,
             tx_err_o         => tx_err,
+            tx_errors_o      => tx_errors,
             tx_arb_lost_o    => open,
             tx_aborted_o     => open,
             tx_fire_drop_o   => tx_drop,

@@ -46,7 +46,7 @@ package canopen_regs_pkg is
     constant REG_CNT_UNEXPECTED_C  : natural := 16#12#; -- RO
     constant REG_CNT_MALFORMED_C   : natural := 16#13#; -- RO
     constant REG_CNT_RX_OVERFLOW_C : natural := 16#14#; -- RO
-    constant REG_CNT_TX_ERROR_C    : natural := 16#15#; -- RO: counter: transmit errors
+    constant REG_CNT_TX_ERROR_C    : natural := 16#15#; -- RO
     constant REG_CNT_SDO_ABORT_C   : natural := 16#16#; -- RO: counter: SDO transfers aborted
     constant REG_CNT_HB_LOSS_C     : natural := 16#17#; -- RO: counter: heartbeat losses
     constant REG_CNT_GUARD_ERR_C   : natural := 16#18#; -- RO: counter: node guarding errors

@@ -71,6 +71,7 @@ entity mcp2510_ctrl is
         reinit_i    : in    std_logic;                    -- pulse: re-run initialisation
         init_done_o : out   std_logic;                    -- chip in normal mode, running
         init_fail_o : out   std_logic;                    -- initialisation failed
+        chip_lost_o : out   std_logic;                    -- strobe: chip found reset, re-init
         busy_o      : out   std_logic;                    -- an SPI sequence is running
         state_o     : out   std_logic_vector(4 downto 0); -- sequencer state (debug)
         -- transmit request
@@ -92,6 +93,7 @@ entity mcp2510_ctrl is
         tx_pending_o   : out   std_logic_vector(2 downto 0); -- TXREQ set (as known here)
         tx_done_o      : out   std_logic_vector(2 downto 0); -- strobe: sent (TXnIF)
         tx_err_o       : out   std_logic_vector(2 downto 0); -- strobe: TXERR seen
+        tx_errors_o    : out   std_logic;                    -- strobe: one own frame destroyed
         tx_arb_lost_o  : out   std_logic_vector(2 downto 0); -- strobe: MLOA seen
         tx_aborted_o   : out   std_logic_vector(2 downto 0); -- strobe: aborted/cancelled
         tx_fire_drop_o : out   std_logic_vector(2 downto 0); -- strobe: fire of an unloaded buffer
@@ -164,7 +166,11 @@ architecture rtl of mcp2510_ctrl is
                                                 / CAN_BITRATE_BPS);
     constant abort_polls_c : positive := 4;
     constant err_poll_c    : positive := us_to_cycles(ERR_POLL_US);
-    constant timer_max_c   : positive := reset_wait_c + mode_poll_c + abort_wait_c;
+    -- TX turnaround: after a TX-done the core gets this long to present the frame for the freed
+    -- buffer before an error poll may start (the poll would lengthen the bus gap between two
+    -- frames of one buffer by its 5 + 3 bytes of SPI); 2 us covers the core's FSM path
+    constant tx_turn_c   : positive := us_to_cycles(2);
+    constant timer_max_c : positive := reset_wait_c + mode_poll_c + abort_wait_c;
 
     function check_config return boolean is
     begin
@@ -393,6 +399,17 @@ architecture rtl of mcp2510_ctrl is
     -- error poll: due (interval over, or an error INT was handled), and the interval counter
     signal err_req : std_logic;
     signal err_cnt : natural range 0 to err_poll_c;
+    -- TX turnaround left (tx_turn_c), the poll waits while it runs
+    signal turn_cnt : natural range 0 to tx_turn_c;
+    -- destroyed frames of this node from TEC steps: TEC of the last poll (0 after RESET), and
+    -- the errors still to report on tx_errors_o (one strobe per cycle)
+    signal tec_base : unsigned(7 downto 0);
+    -- CANSTAT of the error poll (its third byte), and "OPMOD of it is not normal"
+    signal canstat_q : byte_t;
+    signal chip_lost : std_logic;
+    -- the INT just read asks for an error poll
+    signal poll_on_int : std_logic;
+    signal terr_pend   : natural range 0 to 63;
 
     -- values read on an INT
     signal intf_q    : byte_t;
@@ -721,10 +738,16 @@ begin
                 cmd_len   <= x"1";
 
             -- TEC, REC
-            when S_STAT_ERRCNT | S_ERR_CNT =>
+            when S_STAT_ERRCNT =>
 
                 cmd_addr <= MCP_TEC_C;
                 cmd_len  <= x"2";
+
+            -- TEC, REC and CANSTAT (1Eh: CANSTAT is mirrored at every xEh address)
+            when S_ERR_CNT =>
+
+                cmd_addr <= MCP_TEC_C;
+                cmd_len  <= x"3";
 
             when S_ERR_FLG =>
 
@@ -970,10 +993,6 @@ begin
                         go(S_RX_READ);
                     elsif blank_cnt = 0 and int_sync(1) = '0' then
                         go(S_INT_READ);
-                    elsif err_req = '1' then
-                        err_req <= '0';
-                        err_cnt <= err_poll_c;
-                        go(S_ERR_CNT);
                     elsif abort_req = '1' then
                         abort_req <= '0';
                         cancel_op <= '0';
@@ -998,6 +1017,10 @@ begin
                         end loop;
 
                         go(S_TX_LOAD);
+                    elsif err_req = '1' and turn_cnt = 0 then
+                        err_req <= '0';
+                        err_cnt <= err_poll_c;
+                        go(S_ERR_CNT);
                     elsif cancel_chk = '1' or cancel_req /= "000" then
                         cancel_op  <= '1';
                         cancel_buf <= cancel_first;
@@ -1039,8 +1062,7 @@ begin
                     elsif rsp_valid = '1' then
                         buf_idx <= 0;
                         -- an error interrupt: read TEC/REC/EFLG as soon as the INT is handled
-                        if (byte_of(rsp_rdata, 0)
-                            and (MCP_CANINTF_ERRIF_C or MCP_CANINTF_MERRF_C)) /= x"00" then
+                        if poll_on_int = '1' then
                             err_req <= '1';
                         end if;
                         if (byte_of(rsp_rdata, 0) and int_clear_c) = x"00"
@@ -1235,6 +1257,9 @@ begin
                     elsif rsp_valid = '1' then
                         err_valid_o <= '1';
                         go(S_IDLE);
+                        if chip_lost = '1' then
+                            go(S_RESET_CMD);
+                        end if;
                     end if;
 
             end case;
@@ -1304,6 +1329,10 @@ begin
 
                         status_rdstat_o <= byte_of(rd, 0);
 
+                    when S_ERR_CNT =>
+
+                        canstat_q <= byte_of(rd, 2);
+
                     when S_STAT_ERRCNT =>
 
                         status_tec_o <= byte_of(rd, 0);
@@ -1340,10 +1369,30 @@ begin
     tx_ready_o <= '1' when state = S_IDLE and reinit_req = '0' and reinit_i = '0'
                            and not (blank_cnt = 0 and (rx0_sync(1) = '0' or rx1_sync(1) = '0'
                                                  or int_sync(1) = '0'))
-                                   and err_req = '0' and abort_req = '0' and tx_valid_i = '1'
+                                   and abort_req = '0' and tx_valid_i = '1'
                                    and unsigned(tx_buf_i) <= 2
                                    and pending(to_integer(unsigned(tx_buf_i)) mod 3) = '0' else
                   '0';
+
+    -- error poll: OPMOD of its CANSTAT byte not normal while the chip was initialised in normal
+    -- mode (S_ERR_FLG is only reached from S_IDLE): the chip was reset behind the controller's
+    -- back (RESET# glitch, brown-out); its registers, TXRTSCTRL and TX buffers are gone, so
+    -- S_ERR_FLG reports it (chip_lost_o) and runs the initialisation again from RESET
+    chip_lost <= '1' when unsigned(canstat_q and MCP_CANSTAT_OPMOD_MASK_C)
+                          /= MCP_OPMODE_NORMAL_C else
+                 '0';
+
+    -- an error poll after an INT with ERRIF or MERRF and, while TEC /= 0, after one with TXnIF
+    -- (terr_proc: fewer than 8 successes of this node between two polls)
+    poll_on_int <= '1' when (byte_of(rsp_rdata, 0)
+                                and (MCP_CANINTF_ERRIF_C or MCP_CANINTF_MERRF_C)) /= x"00" else
+                   '1' when (byte_of(rsp_rdata, 0) and tx_flags_c) /= x"00" and tec_base /= 0 else
+                   '0';
+
+    -- S_RESET_CMD clears init_done_o one cycle later (attempt is 0 since the last success)
+    chip_lost_o <= '1' when state = S_ERR_FLG and issued = '1' and rsp_valid = '1'
+                            and chip_lost = '1' else
+                   '0';
 
     busy_o       <= '0' when state = S_IDLE or state = S_FAILED else '1';
     state_o      <= std_logic_vector(to_unsigned(seq_state_t'pos(state), 5));
@@ -1480,6 +1529,74 @@ begin
         end if;
 
     end process err_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Destroyed frames of this node, counted from TEC (+8 per transmit error, -1 per success
+    -- while TEC > 0): a poll that reads TEC higher than the previous one reports
+    -- ceil((TEC - previous) / 8) errors on tx_errors_o, one strobe per cycle. Exact while fewer
+    -- than 8 successes of this node lie between two polls (the poll follows every MERRF and,
+    -- while TEC /= 0, every TXnIF); TXBnCTRL.TXERR cannot count, it stays set over the retries
+    -- and MERRF comes for other nodes' errors too (fuzz finding 5).
+    -- ---------------------------------------------------------------------------------------------
+    terr_proc : process (clk_i, rst_n_i) is
+
+        variable new_v  : unsigned(7 downto 0);
+        variable add_v  : natural range 0 to 32;
+        variable pend_v : natural range 0 to 95;
+
+    begin
+
+        if rst_n_i = '0' then
+            tec_base    <= (others => '0');
+            terr_pend   <= 0;
+            tx_errors_o <= '0';
+        elsif rising_edge(clk_i) then
+            add_v  := 0;
+            pend_v := terr_pend;
+            new_v  := unsigned(byte_of(rsp_rdata, 0));
+            if state = S_RESET_CMD then
+                tec_base <= (others => '0');
+            elsif rsp_valid = '1' and state = S_ERR_CNT then
+                if new_v > tec_base then
+                    add_v := to_integer(shift_right(resize(new_v - tec_base, 9) + 7, 3));
+                end if;
+                tec_base <= new_v;
+            end if;
+            tx_errors_o <= '0';
+            if pend_v /= 0 then
+                tx_errors_o <= '1';
+                pend_v      := pend_v - 1;
+            end if;
+            pend_v := pend_v + add_v;
+            if pend_v > 63 then
+                pend_v := 63;
+            end if;
+            terr_pend <= pend_v;
+        end if;
+
+    end process terr_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- TX turnaround (tx_turn_c): armed when an INT sequence reports a TX-done, ended by the next
+    -- TX load; the error poll does not start while it runs (seq_proc, S_IDLE)
+    -- ---------------------------------------------------------------------------------------------
+    turn_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            turn_cnt <= 0;
+        elsif rising_edge(clk_i) then
+            if state = S_INT_CLEAR and issued = '1' and rsp_valid = '1'
+               and intf_q(4 downto 2) /= "000" then
+                turn_cnt <= tx_turn_c;
+            elsif state = S_TX_LOAD then
+                turn_cnt <= 0;
+            elsif turn_cnt /= 0 then
+                turn_cnt <= turn_cnt - 1;
+            end if;
+        end if;
+
+    end process turn_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- RX FIFO (first-word fall-through, block RAM). A frame is pushed 2 cycles before rx_valid_o

@@ -20,7 +20,7 @@ from __future__ import annotations
 import can
 import cocotb
 import pytest
-from cocotb.triggers import Timer, ValueChange
+from cocotb.triggers import RisingEdge, Timer, ValueChange
 
 from sim_models.can_bus import BUS_OFF_RECOVERY_BITS
 from sim_models.canopen_slave import NmtState
@@ -553,6 +553,144 @@ async def run_rx_kept_while_sync_waits(dut):
     check_clean(tb)
     await Timer(1, "ns")
 
+
+
+#: documented bound from a RESET# pulse the master did not cause to its RESET instruction (error
+#: poll interval 500 us + SPI work ahead of the poll, docs/mcp2510_ctrl.md "Chip lost")
+CHIP_LOST_BOUND_US = 700
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_chip_reset_detected_and_reinitialised(dut):
+    """Purpose: a reset of the MCP2510 through its RESET pin that the master did not cause
+    (glitch, brown-out) is detected by the error poll, reported and recovered from.
+
+    Verifies: RESET pin pulses at an SCK rising edge at three phases of a 400 us SYNC period
+    (heartbeats of two slaves on the bus): the master's RESET instruction follows within
+    CHIP_LOST_BOUND_US, CNT_CAN_ERROR counts each loss, IRQ_STATUS.CAN_ERROR and INIT are set,
+    SYNC comes back (ID 080h, DLC 0) and its TX2RTS# pulses are exactly one period apart again,
+    the master sends no ID 000h frame, and the chip model sees no violation except the SPI
+    accesses the chip ignored during its own start-up time right after the pulse (the master
+    cannot know of the reset before its next poll).
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    tb.chip.strict = False
+    pins = SyncPinCounter(dut)
+    fires: list[int] = []
+
+    async def fire_log() -> None:
+        prev = 1
+        while True:
+            await ValueChange(dut.mcp_txrts_n_o)
+            v = dut.mcp_txrts_n_o.value
+            now = int(v) >> 2 & 1 if v.is_resolvable else 1
+            if prev == 1 and now == 0:
+                fires.append(sim_time_ps())
+            prev = now
+
+    cocotb.start_soon(fire_log())
+    await boot(tb)
+    period = 400
+    await tb.host.sync_config(period_us=period)
+    await wait_syncs(tb, 0, 3)
+    ctrl = await tb.host.read("CTRL")  # keep SYNC_EN
+    await tb.host.write("CTRL", ctrl | R.CTRL_CLR_COUNTERS)
+    for k in range(3):
+        await tb.host.write("IRQ_STATUS", 0xFF)
+        await Timer(97 + 131 * k, "us")
+        for _ in range(1 + 37 * k):
+            await RisingEdge(dut.spi_sck_o)
+        n_rst = len(resets(tb))
+        t_glitch = sim_time_ps()
+        tb.chip.reset_pin(t_glitch)
+        await tb.wait_for(lambda n=n_rst: len(resets(tb)) > n, 2 * CHIP_LOST_BOUND_US, 1,
+                          "RESET instruction after the chip reset")
+        t_rst = resets(tb)[n_rst]
+        lat_us = (t_rst - t_glitch) / PS_PER_US
+        dut._log.info("chip reset %d: RESET instruction %.1f us after the pulse", k, lat_us)
+        assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
+        await tb.wait_master_ready()
+        t_init = sim_time_ps()
+        await wait_syncs(tb, t_init, 4)
+        check_syncs(tb, t_init, 4, 0)
+        after = [t for t in fires if t >= t_init][1:]  # the first may be a late fire
+        steps = {b - a for a, b in zip(after, after[1:])}
+        assert steps == {period * PS_PER_US}, f"SYNC fire intervals after re-init: {steps}"
+        irq = await tb.host.read("IRQ_STATUS")
+        assert irq & R.IRQ_STATUS_CAN_ERROR and irq & R.IRQ_STATUS_INIT, hex(irq)
+        assert await tb.host.read("CNT_CAN_ERROR") == k + 1
+    await check_every_sync_fired(tb, pins)
+    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
+    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
+    other = [v for v in tb.chip.violations if "RESET pin" not in v
+             and "oscillator start-up time" not in v]
+    assert other == [], other
+    assert tb.pins.slave.violations == [], tb.pins.slave.violations
+    await Timer(1, "ns")
+
+
+class _RecordHook(list):
+    """The bus's record list, calling ``hook(record)`` when a record is appended (at the end of
+    the record's intermission, before the next arbitration)."""
+
+    def __init__(self, items, hook) -> None:
+        super().__init__(items)
+        self.hook = hook
+
+    def append(self, rec) -> None:
+        super().append(rec)
+        self.hook(rec)
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_tx_error_counted_once(dut):
+    """Purpose: CNT_TX_ERROR counts each destroyed frame of the master exactly once, also when
+    frames of other nodes get error frames while the master's frame waits for its retry.
+
+    Verifies: two rounds on a quiet bus (the master sends only SYNCs, 1 ms period): the master's
+    SYNC is destroyed by CRC errors (round 1: once, round 2: three times in a row), and right
+    after its (last) error frame a raw node queues two frames with ID 010h (they win against
+    the retry) whose next 3 attempts are destroyed too (MERRF for other nodes' errors while
+    TXB2 waits with TXERR set). CNT_TX_ERROR equals the error frames of the master's own frames
+    on the bus after each round (1, then 4).
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    await tb.host.sync_config(period_us=1000)
+    await wait_syncs(tb, 0, 2)
+    ctrl = await tb.host.read("CTRL")  # keep SYNC_EN
+    await tb.host.write("CTRL", ctrl | R.CTRL_CLR_COUNTERS)
+    t0 = sim_time_ps()
+    state = {"left": 0, "raw": 0}
+
+    def hook(rec) -> None:
+        if rec.kind == "error" and rec.sender == CHIP and state["left"] > 0:
+            state["left"] -= 1
+            if state["left"] == 0:
+                tb.raw.send(*[can.Message(arbitration_id=0x010, is_extended_id=False, dlc=2,
+                                          data=b"\x01\x02") for _ in range(state["raw"])])
+                tb.bus.corrupt_next_frame(sender="raw", count=3)
+
+    tb.bus.records = _RecordHook(tb.bus.records, hook)
+    for k, (own, raw) in enumerate(((1, 2), (3, 2))):
+        state["left"], state["raw"] = own, raw
+        tb.bus.corrupt_next_frame(sender=CHIP, count=own)
+        await tb.wait_for(lambda: state["left"] == 0 and not tb.raw.queue, 10_000, 10,
+                          "the round's frames")
+        t_round = sim_time_ps()
+        await wait_syncs(tb, t_round, 2)
+        await Timer(BOUND_US, "us")
+        recs = [r for r in tb.bus.records if r.t_start_ps >= t0]
+        own_err = sum(1 for r in recs if r.kind == "error" and r.sender == CHIP)
+        raw_err = sum(1 for r in recs if r.kind == "error" and r.sender == "raw")
+        cnt = await tb.host.read("CNT_TX_ERROR")
+        dut._log.info("round %d: master frames destroyed %d, raw frames destroyed %d, "
+                      "CNT_TX_ERROR %d", k, own_err, raw_err, cnt)
+        assert raw_err == 3 * (k + 1), raw_err
+        assert own_err == (1, 4)[k], own_err
+        assert cnt == own_err, f"CNT_TX_ERROR {cnt}, master frames destroyed {own_err}"
+    check_clean(tb)
+    await Timer(1, "ns")
 
 # ============================================================================ pytest entry
 @pytest.mark.sim

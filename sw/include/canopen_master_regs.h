@@ -63,7 +63,7 @@
 #define CM_REG_CNT_MALFORMED_BYTE             0x04Cu
 #define CM_REG_CNT_RX_OVERFLOW                0x14u        /* RO: counter: frames lost in the CAN controller (receive overflow) */
 #define CM_REG_CNT_RX_OVERFLOW_BYTE           0x050u
-#define CM_REG_CNT_TX_ERROR                   0x15u        /* RO: counter: transmit errors */
+#define CM_REG_CNT_TX_ERROR                   0x15u        /* RO: counter: transmit errors: frames of the master destroyed by bus errors (one per frame, from TEC steps) and refused TXnRTS fires */
 #define CM_REG_CNT_TX_ERROR_BYTE              0x054u
 #define CM_REG_CNT_SDO_ABORT                  0x16u        /* RO: counter: SDO transfers aborted */
 #define CM_REG_CNT_SDO_ABORT_BYTE             0x058u
@@ -71,7 +71,7 @@
 #define CM_REG_CNT_HB_LOSS_BYTE               0x05Cu
 #define CM_REG_CNT_GUARD_ERR                  0x18u        /* RO: counter: node guarding errors */
 #define CM_REG_CNT_GUARD_ERR_BYTE             0x060u
-#define CM_REG_CNT_CAN_ERROR                  0x19u        /* RO: counter: CAN controller error interrupts */
+#define CM_REG_CNT_CAN_ERROR                  0x19u        /* RO: counter: CAN controller error interrupts (ERRIF) and resets of the CAN controller the master did not cause (chip lost) */
 #define CM_REG_CNT_CAN_ERROR_BYTE             0x064u
 #define CM_REG_CNT_EMCY                       0x1Au        /* RO: counter: EMCY frames received */
 #define CM_REG_CNT_EMCY_BYTE                  0x068u
