@@ -30,6 +30,9 @@
 --     engine does one read-modify-write of one item at a time: the receive match, the frame
 --     read, the frame-taken update, and a housekeeping sweep (SYNC, 100 us tick, window end)
 --     that visits every item once.
+--   * The RAMs have no reset: in the first N_TPDO + N_RPDO cycles after the reset a clearing
+--     sweep writes zeros into the configuration and state RAMs (the engine waits, PDO_CFG /
+--     PDO_INHIBIT writes do nothing, PDO_CFG is REFUSED).
 --   * The seven PDO_CNT_* counters are a canopen_counter_bank (RAM, one shared saturating
 --     incrementer): every strobe is counted, a read may lag the strobes by up to 9 cycles.
 --   * Received frames (rx_valid_i, FSM St5): compared with one channel per cycle (data frames
@@ -259,10 +262,12 @@ architecture rtl of canopen_pdo_engine is
     signal i_sp    : std_logic_vector(n_items_c - 1 downto 0);
     signal i_cfgn  : std_logic_vector(n_items_c - 1 downto 0);
     signal i_stale : std_logic_vector(n_items_c - 1 downto 0);
-    -- every item: the configuration word was written since the reset (else it reads as 0),
-    -- the state word was not written since the reset (it reads as 0); RAMs have no reset
-    signal i_cv    : std_logic_vector(n_items_c - 1 downto 0);
-    signal i_fresh : std_logic_vector(n_items_c - 1 downto 0);
+    -- reset-time clearing sweep of the configuration and state RAMs (they have no reset): one
+    -- item per cycle from the reset, ini_busy until the edge that writes the last item, ini_q
+    -- one cycle later (a copy B read at or before that edge may be stale: shown as 0)
+    signal ini_busy : std_logic;
+    signal ini_q    : std_logic;
+    signal ini_ptr  : natural range 0 to n_items_c - 1;
     -- the item may start a frame now
     signal i_elig : std_logic_vector(n_items_c - 1 downto 0);
 
@@ -271,6 +276,7 @@ architecture rtl of canopen_pdo_engine is
     -- ---------------------------------------------------------------------------------------------
     -- configuration: copy A read by the engine, copy B by the host select (written by the host)
     signal c_we : std_logic;
+    signal h_we : std_logic; -- the host writes the configuration of the selected item
     signal c_wa : natural range 0 to n_items_c - 1;
     signal c_wd : std_logic_vector(cw_w_c - 1 downto 0);
     signal ca_q : std_logic_vector(cw_w_c - 1 downto 0);
@@ -278,6 +284,10 @@ architecture rtl of canopen_pdo_engine is
     -- state: copy A read by the engine, copy B by the host select (written by the engine)
     signal sa_q : std_logic_vector(sw_w_c - 1 downto 0);
     signal sb_q : std_logic_vector(sw_w_c - 1 downto 0);
+    -- state RAM write port (the engine, or the clearing sweep)
+    signal s_we : std_logic;
+    signal s_wa : natural range 0 to n_items_c - 1;
+    signal s_wd : std_logic_vector(sw_w_c - 1 downto 0);
     -- host select read address of the copies B (the item being selected, else the selected one)
     signal hb_ra : natural range 0 to n_items_c - 1;
     -- TPDO data, word 2k + b = bank b of channel k; copy A read by the transmitter, copy B by
@@ -481,7 +491,7 @@ begin
                 tb_q;
 
     shc_view <= sh_cfg when sh_load = '0' else
-                cb_q when i_cv(sel_item) = '1' else
+                cb_q when ini_q = '0' else
                 (others => '0');
     sel_tt   <= unsigned(shc_view(cw_tt_hi_c downto cw_tt_lo_c));
 
@@ -491,7 +501,7 @@ begin
                          or unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C))
                          > 251) else
                  '0';
-    wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok);
+    wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok) and not ini_busy;
 
     -- the channel named by a PDO_SEL write
     new_sel_proc : process (reg_wdata_i) is
@@ -565,7 +575,7 @@ begin
     -- Engine arbiter: the operation started in E_IDLE and the read address of the RAMs A
     -- (priority: receive, TPDO taken, frame read, sweep)
     -- ---------------------------------------------------------------------------------------------
-    arb_proc : process (e_st, e_item, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
+    arb_proc : process (e_st, e_item, ini_busy, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
                         sw_busy, sw_ptr) is
 
         variable rtr_v : std_logic;
@@ -587,7 +597,10 @@ begin
 
             when E_IDLE =>
 
-                if (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
+                if ini_busy = '1' then
+                    -- clearing sweep: the RAMs are not read yet
+                    null;
+                elsif (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
                     e_gop <= OP_RX;
                     if rtr_v = '1' then
                         e_ra <= 0;
@@ -622,8 +635,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
     -- ---------------------------------------------------------------------------------------------
-    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, i_stale, i_cfgn, i_sp,
-                         i_cv, i_fresh,
+    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, ini_busy, i_stale, i_cfgn, i_sp,
                          t_due, t_ns, t_inh, t_latev, r_gs, sw_tick, rx_id_q, rx_rtr_q,
                          rx_dlc_q) is
 
@@ -657,15 +669,16 @@ begin
         x_rtr   <= '0';
         x_mdone <= '0';
 
-        -- the state word with the lazy resets applied
+        -- the state word with the lazy resets applied; zero during the clearing sweep after the
+        -- reset (the engine idles: x_wd = w is the sweep's write data)
         k      := e_item;
         w      := sa_q;
         tt_v   := unsigned(ca_q(cw_tt_hi_c downto cw_tt_lo_c));
-        valid  := ca_q(cw_valid_c) = '1' and i_cv(k) = '1';
+        valid  := ca_q(cw_valid_c) = '1';
         cyc    := tt_v /= 0 and tt_v <= tt_sync_max_c;
         late_v := false;
 
-        if i_fresh(k) = '1' then
+        if ini_busy = '1' then
             w := (others => '0');
         end if;
 
@@ -922,13 +935,17 @@ begin
     -- RAMs
     -- ---------------------------------------------------------------------------------------------
     -- host configuration write: PDO_CFG (with the inhibit time kept) or PDO_INHIBIT (TPDO)
-    c_we <= wr_cfg_ok or (wr_inh and sel_t_ok);
-    c_wa <= sel_item;
+    h_we <= wr_cfg_ok or (wr_inh and sel_t_ok and not ini_busy);
+    c_we <= h_we or ini_busy;
+    c_wa <= ini_ptr when ini_busy = '1' else
+            sel_item;
 
-    cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view) is
+    cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view, ini_busy) is
     begin
 
-        if wr_cfg = '1' then
+        if ini_busy = '1' then
+            c_wd <= (others => '0');
+        elsif wr_cfg = '1' then
             c_wd <= shc_view(cw_inh_hi_c downto cw_inh_lo_c)
                     & reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C)
                     & reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)
@@ -978,9 +995,9 @@ begin
         )
         port map (
             clk_i   => clk_i,
-            we_i    => x_we,
-            waddr_i => e_item,
-            wdata_i => x_wd,
+            we_i    => s_we,
+            waddr_i => s_wa,
+            wdata_i => s_wd,
             re_i    => '1',
             raddr_i => e_ra,
             rdata_o => sa_q
@@ -993,13 +1010,40 @@ begin
         )
         port map (
             clk_i   => clk_i,
-            we_i    => x_we,
-            waddr_i => e_item,
-            wdata_i => x_wd,
+            we_i    => s_we,
+            waddr_i => s_wa,
+            wdata_i => s_wd,
             re_i    => '1',
             raddr_i => hb_ra,
             rdata_o => sb_q
         );
+
+    -- state write port: the engine, or the clearing sweep (the engine idles meanwhile)
+    s_we <= x_we or ini_busy;
+    s_wa <= ini_ptr when ini_busy = '1' else
+            e_item;
+    s_wd <= x_wd; -- zero during the sweep (exec_proc)
+
+    -- clearing sweep after the reset: item ini_ptr of both RAMs zeroed each cycle
+    ini_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            ini_busy <= '1';
+            ini_q    <= '1';
+            ini_ptr  <= 0;
+        elsif rising_edge(clk_i) then
+            ini_q <= ini_busy;
+            if ini_busy = '1' then
+                if ini_ptr = n_items_c - 1 then
+                    ini_busy <= '0';
+                else
+                    ini_ptr <= ini_ptr + 1;
+                end if;
+            end if;
+        end if;
+
+    end process ini_proc;
 
     -- TPDO data: commit of the staging register into the inactive bank of the selected TPDO;
     -- the transmitter reads the active bank of its channel, the host select the latest
@@ -1111,12 +1155,12 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Host window: selection, shadows, snapshots, staging register
     -- ---------------------------------------------------------------------------------------------
-    shs_view_proc : process (shs_load, sh_st, sb_q, i_stale, i_fresh, sel_item) is
+    shs_view_proc : process (shs_load, sh_st, sb_q, i_stale, ini_q, sel_item) is
     begin
 
         if shs_load = '1' then
             shs_view <= sb_q(sw_c2_hi_c downto sw_seq_lo_c);
-            if i_fresh(sel_item) = '1' then
+            if ini_q = '1' then
                 shs_view <= (others => '0');
             elsif i_stale(sel_item) = '1' then
                 shs_view(sw_c2_hi_c downto sw_c1_lo_c) <= (others => '0');
@@ -1156,7 +1200,7 @@ begin
             if shs_load = '1' then
                 sh_st <= shs_view;
             end if;
-            if c_we = '1' then
+            if h_we = '1' then
                 sh_cfg <= c_wd;
             end if;
             if x_we = '1' and e_item = sel_item then
@@ -1382,7 +1426,7 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        if e_st = E_IDLE then
+                        if e_st = E_IDLE and ini_busy = '0' then
                             rx_st <= S_RX_MATCH;
                         else
                             rx_st <= S_RX_WAIT;
@@ -1391,7 +1435,7 @@ begin
 
                 when S_RX_WAIT =>
 
-                    if e_st = E_IDLE then
+                    if e_st = E_IDLE and ini_busy = '0' then
                         rx_st <= S_RX_MATCH;
                     end if;
 
@@ -1482,8 +1526,6 @@ begin
             i_sp      <= (others => '0');
             i_cfgn    <= (others => '0');
             i_stale   <= (others => '0');
-            i_cv      <= (others => '0');
-            i_fresh   <= (others => '1');
             ev_late_q <= '0';
             ev_miss_q <= '0';
         elsif rising_edge(clk_i) then
@@ -1496,7 +1538,6 @@ begin
                 eng_k := e_item = i;
                 if x_we = '1' and eng_k then
                     i_stale(i) <= '0';
-                    i_fresh(i) <= '0';
                     if e_hit = '0' then
                         i_cfgn(i) <= '0';
                     end if;
@@ -1506,9 +1547,6 @@ begin
                 end if;
                 if clr = '1' then
                     i_stale(i) <= '1';
-                end if;
-                if c_we = '1' and sel_item = i then
-                    i_cv(i) <= '1';
                 end if;
 
             end loop;
