@@ -106,7 +106,9 @@ architecture rtl of canopen_pdo_engine is
     constant n_items_c : positive := N_TPDO + N_RPDO;
     constant rram_w_c  : positive := 64 + 16 + 8; -- RPDO RAM word: data, seq, SYNC count
 
-    -- configuration RAM word: COB-ID, RTR, valid, DLC, TT, inhibit time [100 us]
+    -- configuration RAM word: COB-ID, RTR, valid, DLC, TT, inhibit time [100 us], generation bit
+    -- (flipped by every PDO_CFG write; the state word keeps the value of the engine's last write:
+    -- they differ = configuration written since the last state write)
     constant cw_cob_lo_c : natural := 0;
     constant cw_cob_hi_c : natural := 10;
     constant cw_rtr_c    : natural := 11;
@@ -117,10 +119,13 @@ architecture rtl of canopen_pdo_engine is
     constant cw_tt_hi_c  : natural := 24;
     constant cw_inh_lo_c : natural := 25;
     constant cw_inh_hi_c : natural := 40;
-    constant cw_w_c      : natural := 41;
+    constant cw_gen_c    : natural := 41;
+    constant cw_w_c      : natural := 42;
     -- state RAM word: SEQ, counter 1 (TPDO LATE, RPDO LEN_ERR), counter 2 (TPDO inhibit ticks
     -- left, RPDO MISSED), SYNCs left in the interval, flag 1 (TPDO first inhibit tick to come,
-    -- RPDO missed-cycle monitor armed), flag 2 (RPDO PDO stored in the interval)
+    -- RPDO missed-cycle monitor armed), flag 2 (RPDO PDO stored in the interval), RPDO PDO
+    -- stored in the SYNC period the next SYNC visit closes, RPDO PDO stored after that period
+    -- (after a SYNC whose visit is pending), the configuration generation bit of the last write
     constant sw_seq_lo_c  : natural := 0;
     constant sw_seq_hi_c  : natural := 15;
     constant sw_c1_lo_c   : natural := 16;
@@ -131,7 +136,10 @@ architecture rtl of canopen_pdo_engine is
     constant sw_left_hi_c : natural := 55;
     constant sw_f1_c      : natural := 56;
     constant sw_f2_c      : natural := 57;
-    constant sw_w_c       : natural := 58;
+    constant sw_got_c     : natural := 58;
+    constant sw_gnx_c     : natural := 59;
+    constant sw_gen_c     : natural := 60;
+    constant sw_w_c       : natural := 61;
 
     -- CiA 301 transmission types (7.2.2.3.2; not in canopen_pkg)
     constant tt_sync_max_c  : natural := 240; -- 1..240: every n-th SYNC
@@ -176,7 +184,8 @@ architecture rtl of canopen_pdo_engine is
         assert cw_inh_hi_c - cw_inh_lo_c = PDO_INHIBIT_TIME_100US_HI_C - PDO_INHIBIT_TIME_100US_LO_C
                and cw_tt_hi_c - cw_tt_lo_c = PDO_CFG_TT_HI_C - PDO_CFG_TT_LO_C
                and cw_dlc_lo_c = cw_valid_c + 1 and cw_valid_c = cw_rtr_c + 1
-               and cw_rtr_c = cw_cob_hi_c + 1 and cw_cob_lo_c = 0 and cw_w_c = cw_inh_hi_c + 1
+               and cw_rtr_c = cw_cob_hi_c + 1 and cw_cob_lo_c = 0 and cw_gen_c = cw_inh_hi_c + 1
+               and cw_w_c = cw_gen_c + 1
             report "canopen_pdo_engine: configuration word layout and concatenation differ"
             severity failure;
         assert REG_PDO_WIN_WORDS_C = 64
@@ -249,18 +258,15 @@ architecture rtl of canopen_pdo_engine is
     signal t_ns    : std_logic_vector(N_TPDO - 1 downto 0);
     signal t_inh   : std_logic_vector(N_TPDO - 1 downto 0);
     signal t_latev : std_logic_vector(N_TPDO - 1 downto 0);
-    -- RPDO: data not acknowledged, a PDO was stored since the reset, RTR poll due, PDO stored
-    -- since the last SYNC, PDO stored in the SYNC period the pending SYNC visit closes
+    -- RPDO: data not acknowledged, a PDO was stored since the reset, RTR poll due (the PDOs
+    -- stored per SYNC period are bits of the state word)
     signal r_new  : std_logic_vector(N_RPDO - 1 downto 0);
     signal r_ok   : std_logic_vector(N_RPDO - 1 downto 0);
     signal r_poll : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_got  : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_gs   : std_logic_vector(N_RPDO - 1 downto 0);
-    -- every item: SYNC visit pending, configuration written since the last state write (the
-    -- SYNC/monitor fields of the state word read as reset), counters cleared since the last
-    -- state write (LATE / LEN_ERR / MISSED read as 0)
+    -- every item: SYNC visit pending, counters cleared since the last state write (LATE /
+    -- LEN_ERR / MISSED read as 0); "configuration written since the last state write" is the
+    -- generation bits of the configuration and state words
     signal i_sp    : std_logic_vector(n_items_c - 1 downto 0);
-    signal i_cfgn  : std_logic_vector(n_items_c - 1 downto 0);
     signal i_stale : std_logic_vector(n_items_c - 1 downto 0);
     -- reset-time clearing sweep of the configuration and state RAMs (they have no reset): one
     -- item per cycle from the reset, ini_busy until the edge that writes the last item, ini_q
@@ -317,8 +323,6 @@ architecture rtl of canopen_pdo_engine is
     signal e_item : natural range 0 to n_items_c - 1;
     -- last item of the receive match (TPDOs for a remote frame, RPDOs for a data frame)
     signal e_last : natural range 0 to n_items_c - 1;
-    -- the host wrote the configuration of the item at the edge that read it
-    signal e_hit : std_logic;
     -- operation chosen in E_IDLE and the engine's read address
     signal e_gop : eng_op_t;
     signal e_ra  : natural range 0 to n_items_c - 1;
@@ -635,9 +639,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
     -- ---------------------------------------------------------------------------------------------
-    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, ini_busy, i_stale, i_cfgn, i_sp,
-                         t_due, t_ns, t_inh, t_latev, r_gs, sw_tick, rx_id_q, rx_rtr_q,
-                         rx_dlc_q) is
+    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, ini_busy, i_stale, i_sp, sync_i,
+                         t_due, t_ns, t_inh, t_latev, sw_tick, rx_id_q, rx_rtr_q, rx_dlc_q) is
 
         variable w      : std_logic_vector(sw_w_c - 1 downto 0);
         variable tt_v   : unsigned(7 downto 0);
@@ -649,6 +652,8 @@ begin
         variable late_v : boolean;
         variable acc_v  : std_logic;
         variable f1_v   : std_logic;
+        variable got_v  : std_logic;
+        variable gnx_v  : std_logic;
         variable match  : boolean;
         variable k      : natural range 0 to n_items_c - 1;
         variable seq1_v : std_logic_vector(15 downto 0);
@@ -689,12 +694,15 @@ begin
             end if;
         end if;
 
-        if i_cfgn(k) = '1' then
+        -- configuration written since the last state write (generation bits differ)
+        if ca_q(cw_gen_c) /= w(sw_gen_c) then
             if k < N_TPDO then
                 w(sw_left_hi_c downto sw_left_lo_c) := std_logic_vector(tt_v);
             else
-                w(sw_f1_c) := '0';
-                w(sw_f2_c) := '0';
+                w(sw_f1_c)  := '0';
+                w(sw_f2_c)  := '0';
+                w(sw_got_c) := '0';
+                w(sw_gnx_c) := '0';
             end if;
         end if;
 
@@ -703,6 +711,8 @@ begin
         c2_v   := unsigned(w(sw_c2_hi_c downto sw_c2_lo_c));
         f1_v   := w(sw_f1_c);
         acc_v  := w(sw_f2_c);
+        got_v  := w(sw_got_c);
+        gnx_v  := w(sw_gnx_c);
 
         seq1_v := std_logic_vector(unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
         x_tseq <= seq1_v;
@@ -749,22 +759,27 @@ begin
                                 x_inhc <= '1';
                             end if;
                         end if;
-                    elsif i_sp(k) = '1' and valid then
-                        -- SYNC: RTR poll; missed-cycle monitor of a synchronous RPDO
-                        if ca_q(cw_rtr_c) = '1' then
-                            x_poll <= '1';
-                        end if;
-                        if f1_v = '1' and cyc then
-                            acc_v := acc_v or r_gs(k - N_TPDO);
-                            if left_v <= 1 then
-                                if acc_v = '0' then
-                                    x_miss <= '1';
-                                    c2_v   := sat_inc(c2_v);
+                    elsif i_sp(k) = '1' then
+                        -- SYNC: the period it closed is taken (the one after it follows); RTR
+                        -- poll; missed-cycle monitor of a synchronous RPDO
+                        got_v := gnx_v;
+                        gnx_v := '0';
+                        if valid then
+                            if ca_q(cw_rtr_c) = '1' then
+                                x_poll <= '1';
+                            end if;
+                            if f1_v = '1' and cyc then
+                                acc_v := acc_v or w(sw_got_c);
+                                if left_v <= 1 then
+                                    if acc_v = '0' then
+                                        x_miss <= '1';
+                                        c2_v   := sat_inc(c2_v);
+                                    end if;
+                                    acc_v  := '0';
+                                    left_v := tt_v;
+                                else
+                                    left_v := left_v - 1;
                                 end if;
-                                acc_v  := '0';
-                                left_v := tt_v;
-                            else
-                                left_v := left_v - 1;
                             end if;
                         end if;
                     end if;
@@ -801,6 +816,13 @@ begin
                     x_store                           <= '1';
                     x_we                              <= '1';
                     w(sw_seq_hi_c downto sw_seq_lo_c) := seq1_v;
+                    -- the SYNC period it belongs to (a SYNC at this edge or one whose visit is
+                    -- pending has closed the current one)
+                    if i_sp(k) = '1' or sync_i = '1' then
+                        gnx_v := '1';
+                    else
+                        got_v := '1';
+                    end if;
                     if f1_v = '0' then
                         -- the monitor starts at the SYNC that caused this PDO (a SYNC visit
                         -- still pending for the item takes one off)
@@ -822,7 +844,11 @@ begin
         w(sw_c2_hi_c downto sw_c2_lo_c)     := std_logic_vector(c2_v);
         w(sw_f1_c)                          := f1_v;
         w(sw_f2_c)                          := acc_v;
-        x_wd                                <= w;
+        w(sw_got_c)                         := got_v;
+        w(sw_gnx_c)                         := gnx_v;
+        -- the configuration seen by this write (zero during the clearing sweep)
+        w(sw_gen_c) := ca_q(cw_gen_c) and not ini_busy;
+        x_wd        <= w;
 
     end process exec_proc;
 
@@ -837,7 +863,6 @@ begin
             e_op     <= OP_NONE;
             e_item   <= 0;
             e_last   <= 0;
-            e_hit    <= '0';
             sw_busy  <= '0';
             sw_ptr   <= 0;
             sw_tick  <= '0';
@@ -849,12 +874,6 @@ begin
             tick100  <= '0';
         elsif rising_edge(clk_i) then
             win_q <= window_open_i;
-            -- the host writes the configuration of the item read at this edge
-            if wr_cfg_ok = '1' and sel_item = e_ra then
-                e_hit <= '1';
-            else
-                e_hit <= '0';
-            end if;
 
             -- 100 us prescaler of the inhibit times
             tick100 <= '0';
@@ -946,13 +965,14 @@ begin
         if ini_busy = '1' then
             c_wd <= (others => '0');
         elsif wr_cfg = '1' then
-            c_wd <= shc_view(cw_inh_hi_c downto cw_inh_lo_c)
+            c_wd <= not shc_view(cw_gen_c) & shc_view(cw_inh_hi_c downto cw_inh_lo_c)
                     & reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C)
                     & reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)
                     & reg_wdata_i(PDO_CFG_VALID_C) & reg_wdata_i(PDO_CFG_RTR_C)
                     & reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
         else
-            c_wd <= reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C)
+            c_wd <= shc_view(cw_gen_c)
+                    & reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C)
                     & shc_view(cw_tt_hi_c downto cw_cob_lo_c);
         end if;
 
@@ -1521,10 +1541,7 @@ begin
             r_new     <= (others => '0');
             r_ok      <= (others => '0');
             r_poll    <= (others => '0');
-            r_got     <= (others => '0');
-            r_gs      <= (others => '0');
             i_sp      <= (others => '0');
-            i_cfgn    <= (others => '0');
             i_stale   <= (others => '0');
             ev_late_q <= '0';
             ev_miss_q <= '0';
@@ -1538,9 +1555,6 @@ begin
                 eng_k := e_item = i;
                 if x_we = '1' and eng_k then
                     i_stale(i) <= '0';
-                    if e_hit = '0' then
-                        i_cfgn(i) <= '0';
-                    end if;
                 end if;
                 if x_visit = '1' and eng_k then
                     i_sp(i) <= '0';
@@ -1640,10 +1654,9 @@ begin
                     else
                         t_sync(k) <= '0';
                     end if;
-                    due_v     := '0';
-                    new_v     := '0';
-                    i_sp(k)   <= '0';
-                    i_cfgn(k) <= '1';
+                    due_v   := '0';
+                    new_v   := '0';
+                    i_sp(k) <= '0';
                 end if;
 
                 t_due(k)   <= due_v;
@@ -1657,13 +1670,9 @@ begin
                 host_k := sel_r_ok = '1' and sel_ch = k;
                 eng_k  := e_item = N_TPDO + k;
 
-                -- SYNC: the PDO flag of the closing period moves to the visit
+                -- SYNC: the visit closes the period (the PDO flags are in the state word)
                 if sync_i = '1' then
                     i_sp(N_TPDO + k) <= '1';
-                    r_gs(k)          <= r_got(k);
-                    r_got(k)         <= '0';
-                elsif x_visit = '1' and eng_k then
-                    r_gs(k) <= '0';
                 end if;
                 if x_poll = '1' and eng_k then
                     r_poll(k) <= '1';
@@ -1682,7 +1691,6 @@ begin
                 if x_store = '1' and eng_k then
                     r_new(k) <= '1';
                     r_ok(k)  <= '1';
-                    r_got(k) <= '1';
                 end if;
 
                 if started = '1' and p = N_TPDO + k then
@@ -1690,11 +1698,8 @@ begin
                 end if;
 
                 if wr_cfg_ok = '1' and host_k then
-                    r_got(k)           <= '0';
-                    r_gs(k)            <= '0';
-                    r_poll(k)          <= '0';
-                    i_sp(N_TPDO + k)   <= '0';
-                    i_cfgn(N_TPDO + k) <= '1';
+                    r_poll(k)        <= '0';
+                    i_sp(N_TPDO + k) <= '0';
                 end if;
 
             end loop;
