@@ -30,6 +30,9 @@
 --     engine does one read-modify-write of one item at a time: the receive match, the frame
 --     read, the frame-taken update, and a housekeeping sweep (SYNC, 100 us tick, window end)
 --     that visits every item once.
+--   * The RAMs have no reset: in the first N_TPDO + N_RPDO cycles after the reset a clearing
+--     sweep writes zeros into the configuration and state RAMs (the engine waits, PDO_CFG /
+--     PDO_INHIBIT writes do nothing, PDO_CFG is REFUSED).
 --   * The seven PDO_CNT_* counters are a canopen_counter_bank (RAM, one shared saturating
 --     incrementer): every strobe is counted, a read may lag the strobes by up to 9 cycles.
 --   * Received frames (rx_valid_i, FSM St5): compared with one channel per cycle (data frames
@@ -103,7 +106,9 @@ architecture rtl of canopen_pdo_engine is
     constant n_items_c : positive := N_TPDO + N_RPDO;
     constant rram_w_c  : positive := 64 + 16 + 8; -- RPDO RAM word: data, seq, SYNC count
 
-    -- configuration RAM word: COB-ID, RTR, valid, DLC, TT, inhibit time [100 us]
+    -- configuration RAM word: COB-ID, RTR, valid, DLC, TT, inhibit time [100 us], generation bit
+    -- (flipped by every PDO_CFG write; the state word keeps the value of the engine's last write:
+    -- they differ = configuration written since the last state write)
     constant cw_cob_lo_c : natural := 0;
     constant cw_cob_hi_c : natural := 10;
     constant cw_rtr_c    : natural := 11;
@@ -114,10 +119,13 @@ architecture rtl of canopen_pdo_engine is
     constant cw_tt_hi_c  : natural := 24;
     constant cw_inh_lo_c : natural := 25;
     constant cw_inh_hi_c : natural := 40;
-    constant cw_w_c      : natural := 41;
+    constant cw_gen_c    : natural := 41;
+    constant cw_w_c      : natural := 42;
     -- state RAM word: SEQ, counter 1 (TPDO LATE, RPDO LEN_ERR), counter 2 (TPDO inhibit ticks
     -- left, RPDO MISSED), SYNCs left in the interval, flag 1 (TPDO first inhibit tick to come,
-    -- RPDO missed-cycle monitor armed), flag 2 (RPDO PDO stored in the interval)
+    -- RPDO missed-cycle monitor armed), flag 2 (RPDO PDO stored in the interval), RPDO PDO
+    -- stored in the SYNC period the next SYNC visit closes, RPDO PDO stored after that period
+    -- (after a SYNC whose visit is pending), the configuration generation bit of the last write
     constant sw_seq_lo_c  : natural := 0;
     constant sw_seq_hi_c  : natural := 15;
     constant sw_c1_lo_c   : natural := 16;
@@ -128,7 +136,10 @@ architecture rtl of canopen_pdo_engine is
     constant sw_left_hi_c : natural := 55;
     constant sw_f1_c      : natural := 56;
     constant sw_f2_c      : natural := 57;
-    constant sw_w_c       : natural := 58;
+    constant sw_got_c     : natural := 58;
+    constant sw_gnx_c     : natural := 59;
+    constant sw_gen_c     : natural := 60;
+    constant sw_w_c       : natural := 61;
 
     -- CiA 301 transmission types (7.2.2.3.2; not in canopen_pkg)
     constant tt_sync_max_c  : natural := 240; -- 1..240: every n-th SYNC
@@ -173,7 +184,8 @@ architecture rtl of canopen_pdo_engine is
         assert cw_inh_hi_c - cw_inh_lo_c = PDO_INHIBIT_TIME_100US_HI_C - PDO_INHIBIT_TIME_100US_LO_C
                and cw_tt_hi_c - cw_tt_lo_c = PDO_CFG_TT_HI_C - PDO_CFG_TT_LO_C
                and cw_dlc_lo_c = cw_valid_c + 1 and cw_valid_c = cw_rtr_c + 1
-               and cw_rtr_c = cw_cob_hi_c + 1 and cw_cob_lo_c = 0 and cw_w_c = cw_inh_hi_c + 1
+               and cw_rtr_c = cw_cob_hi_c + 1 and cw_cob_lo_c = 0 and cw_gen_c = cw_inh_hi_c + 1
+               and cw_w_c = cw_gen_c + 1
             report "canopen_pdo_engine: configuration word layout and concatenation differ"
             severity failure;
         assert REG_PDO_WIN_WORDS_C = 64
@@ -246,23 +258,22 @@ architecture rtl of canopen_pdo_engine is
     signal t_ns    : std_logic_vector(N_TPDO - 1 downto 0);
     signal t_inh   : std_logic_vector(N_TPDO - 1 downto 0);
     signal t_latev : std_logic_vector(N_TPDO - 1 downto 0);
-    -- RPDO: data not acknowledged, a PDO was stored since the reset, RTR poll due, PDO stored
-    -- since the last SYNC, PDO stored in the SYNC period the pending SYNC visit closes
+    -- RPDO: data not acknowledged, a PDO was stored since the reset, RTR poll due (the PDOs
+    -- stored per SYNC period are bits of the state word)
     signal r_new  : std_logic_vector(N_RPDO - 1 downto 0);
     signal r_ok   : std_logic_vector(N_RPDO - 1 downto 0);
     signal r_poll : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_got  : std_logic_vector(N_RPDO - 1 downto 0);
-    signal r_gs   : std_logic_vector(N_RPDO - 1 downto 0);
-    -- every item: SYNC visit pending, configuration written since the last state write (the
-    -- SYNC/monitor fields of the state word read as reset), counters cleared since the last
-    -- state write (LATE / LEN_ERR / MISSED read as 0)
+    -- every item: SYNC visit pending, counters cleared since the last state write (LATE /
+    -- LEN_ERR / MISSED read as 0); "configuration written since the last state write" is the
+    -- generation bits of the configuration and state words
     signal i_sp    : std_logic_vector(n_items_c - 1 downto 0);
-    signal i_cfgn  : std_logic_vector(n_items_c - 1 downto 0);
     signal i_stale : std_logic_vector(n_items_c - 1 downto 0);
-    -- every item: the configuration word was written since the reset (else it reads as 0),
-    -- the state word was not written since the reset (it reads as 0); RAMs have no reset
-    signal i_cv    : std_logic_vector(n_items_c - 1 downto 0);
-    signal i_fresh : std_logic_vector(n_items_c - 1 downto 0);
+    -- reset-time clearing sweep of the configuration and state RAMs (they have no reset): one
+    -- item per cycle from the reset, ini_busy until the edge that writes the last item, ini_q
+    -- one cycle later (a copy B read at or before that edge may be stale: shown as 0)
+    signal ini_busy : std_logic;
+    signal ini_q    : std_logic;
+    signal ini_ptr  : natural range 0 to n_items_c - 1;
     -- the item may start a frame now
     signal i_elig : std_logic_vector(n_items_c - 1 downto 0);
 
@@ -271,6 +282,7 @@ architecture rtl of canopen_pdo_engine is
     -- ---------------------------------------------------------------------------------------------
     -- configuration: copy A read by the engine, copy B by the host select (written by the host)
     signal c_we : std_logic;
+    signal h_we : std_logic; -- the host writes the configuration of the selected item
     signal c_wa : natural range 0 to n_items_c - 1;
     signal c_wd : std_logic_vector(cw_w_c - 1 downto 0);
     signal ca_q : std_logic_vector(cw_w_c - 1 downto 0);
@@ -278,6 +290,10 @@ architecture rtl of canopen_pdo_engine is
     -- state: copy A read by the engine, copy B by the host select (written by the engine)
     signal sa_q : std_logic_vector(sw_w_c - 1 downto 0);
     signal sb_q : std_logic_vector(sw_w_c - 1 downto 0);
+    -- state RAM write port (the engine, or the clearing sweep)
+    signal s_we : std_logic;
+    signal s_wa : natural range 0 to n_items_c - 1;
+    signal s_wd : std_logic_vector(sw_w_c - 1 downto 0);
     -- host select read address of the copies B (the item being selected, else the selected one)
     signal hb_ra : natural range 0 to n_items_c - 1;
     -- TPDO data, word 2k + b = bank b of channel k; copy A read by the transmitter, copy B by
@@ -307,8 +323,6 @@ architecture rtl of canopen_pdo_engine is
     signal e_item : natural range 0 to n_items_c - 1;
     -- last item of the receive match (TPDOs for a remote frame, RPDOs for a data frame)
     signal e_last : natural range 0 to n_items_c - 1;
-    -- the host wrote the configuration of the item at the edge that read it
-    signal e_hit : std_logic;
     -- operation chosen in E_IDLE and the engine's read address
     signal e_gop : eng_op_t;
     signal e_ra  : natural range 0 to n_items_c - 1;
@@ -481,7 +495,7 @@ begin
                 tb_q;
 
     shc_view <= sh_cfg when sh_load = '0' else
-                cb_q when i_cv(sel_item) = '1' else
+                cb_q when ini_q = '0' else
                 (others => '0');
     sel_tt   <= unsigned(shc_view(cw_tt_hi_c downto cw_tt_lo_c));
 
@@ -491,7 +505,7 @@ begin
                          or unsigned(reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C))
                          > 251) else
                  '0';
-    wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok);
+    wr_cfg_ok <= wr_cfg and cfg_ok and (sel_t_ok or sel_r_ok) and not ini_busy;
 
     -- the channel named by a PDO_SEL write
     new_sel_proc : process (reg_wdata_i) is
@@ -565,7 +579,7 @@ begin
     -- Engine arbiter: the operation started in E_IDLE and the read address of the RAMs A
     -- (priority: receive, TPDO taken, frame read, sweep)
     -- ---------------------------------------------------------------------------------------------
-    arb_proc : process (e_st, e_item, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
+    arb_proc : process (e_st, e_item, ini_busy, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
                         sw_busy, sw_ptr) is
 
         variable rtr_v : std_logic;
@@ -587,7 +601,10 @@ begin
 
             when E_IDLE =>
 
-                if (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
+                if ini_busy = '1' then
+                    -- clearing sweep: the RAMs are not read yet
+                    null;
+                elsif (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
                     e_gop <= OP_RX;
                     if rtr_v = '1' then
                         e_ra <= 0;
@@ -622,10 +639,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
     -- ---------------------------------------------------------------------------------------------
-    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, i_stale, i_cfgn, i_sp,
-                         i_cv, i_fresh,
-                         t_due, t_ns, t_inh, t_latev, r_gs, sw_tick, rx_id_q, rx_rtr_q,
-                         rx_dlc_q) is
+    exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, ini_busy, i_stale, i_sp, sync_i,
+                         t_due, t_ns, t_inh, t_latev, sw_tick, rx_id_q, rx_rtr_q, rx_dlc_q) is
 
         variable w      : std_logic_vector(sw_w_c - 1 downto 0);
         variable tt_v   : unsigned(7 downto 0);
@@ -637,6 +652,8 @@ begin
         variable late_v : boolean;
         variable acc_v  : std_logic;
         variable f1_v   : std_logic;
+        variable got_v  : std_logic;
+        variable gnx_v  : std_logic;
         variable match  : boolean;
         variable k      : natural range 0 to n_items_c - 1;
         variable seq1_v : std_logic_vector(15 downto 0);
@@ -657,15 +674,16 @@ begin
         x_rtr   <= '0';
         x_mdone <= '0';
 
-        -- the state word with the lazy resets applied
+        -- the state word with the lazy resets applied; zero during the clearing sweep after the
+        -- reset (the engine idles: x_wd = w is the sweep's write data)
         k      := e_item;
         w      := sa_q;
         tt_v   := unsigned(ca_q(cw_tt_hi_c downto cw_tt_lo_c));
-        valid  := ca_q(cw_valid_c) = '1' and i_cv(k) = '1';
+        valid  := ca_q(cw_valid_c) = '1';
         cyc    := tt_v /= 0 and tt_v <= tt_sync_max_c;
         late_v := false;
 
-        if i_fresh(k) = '1' then
+        if ini_busy = '1' then
             w := (others => '0');
         end if;
 
@@ -676,12 +694,15 @@ begin
             end if;
         end if;
 
-        if i_cfgn(k) = '1' then
+        -- configuration written since the last state write (generation bits differ)
+        if ca_q(cw_gen_c) /= w(sw_gen_c) then
             if k < N_TPDO then
                 w(sw_left_hi_c downto sw_left_lo_c) := std_logic_vector(tt_v);
             else
-                w(sw_f1_c) := '0';
-                w(sw_f2_c) := '0';
+                w(sw_f1_c)  := '0';
+                w(sw_f2_c)  := '0';
+                w(sw_got_c) := '0';
+                w(sw_gnx_c) := '0';
             end if;
         end if;
 
@@ -690,6 +711,8 @@ begin
         c2_v   := unsigned(w(sw_c2_hi_c downto sw_c2_lo_c));
         f1_v   := w(sw_f1_c);
         acc_v  := w(sw_f2_c);
+        got_v  := w(sw_got_c);
+        gnx_v  := w(sw_gnx_c);
 
         seq1_v := std_logic_vector(unsigned(w(sw_seq_hi_c downto sw_seq_lo_c)) + 1);
         x_tseq <= seq1_v;
@@ -736,22 +759,27 @@ begin
                                 x_inhc <= '1';
                             end if;
                         end if;
-                    elsif i_sp(k) = '1' and valid then
-                        -- SYNC: RTR poll; missed-cycle monitor of a synchronous RPDO
-                        if ca_q(cw_rtr_c) = '1' then
-                            x_poll <= '1';
-                        end if;
-                        if f1_v = '1' and cyc then
-                            acc_v := acc_v or r_gs(k - N_TPDO);
-                            if left_v <= 1 then
-                                if acc_v = '0' then
-                                    x_miss <= '1';
-                                    c2_v   := sat_inc(c2_v);
+                    elsif i_sp(k) = '1' then
+                        -- SYNC: the period it closed is taken (the one after it follows); RTR
+                        -- poll; missed-cycle monitor of a synchronous RPDO
+                        got_v := gnx_v;
+                        gnx_v := '0';
+                        if valid then
+                            if ca_q(cw_rtr_c) = '1' then
+                                x_poll <= '1';
+                            end if;
+                            if f1_v = '1' and cyc then
+                                acc_v := acc_v or w(sw_got_c);
+                                if left_v <= 1 then
+                                    if acc_v = '0' then
+                                        x_miss <= '1';
+                                        c2_v   := sat_inc(c2_v);
+                                    end if;
+                                    acc_v  := '0';
+                                    left_v := tt_v;
+                                else
+                                    left_v := left_v - 1;
                                 end if;
-                                acc_v  := '0';
-                                left_v := tt_v;
-                            else
-                                left_v := left_v - 1;
                             end if;
                         end if;
                     end if;
@@ -788,6 +816,13 @@ begin
                     x_store                           <= '1';
                     x_we                              <= '1';
                     w(sw_seq_hi_c downto sw_seq_lo_c) := seq1_v;
+                    -- the SYNC period it belongs to (a SYNC at this edge or one whose visit is
+                    -- pending has closed the current one)
+                    if i_sp(k) = '1' or sync_i = '1' then
+                        gnx_v := '1';
+                    else
+                        got_v := '1';
+                    end if;
                     if f1_v = '0' then
                         -- the monitor starts at the SYNC that caused this PDO (a SYNC visit
                         -- still pending for the item takes one off)
@@ -809,7 +844,11 @@ begin
         w(sw_c2_hi_c downto sw_c2_lo_c)     := std_logic_vector(c2_v);
         w(sw_f1_c)                          := f1_v;
         w(sw_f2_c)                          := acc_v;
-        x_wd                                <= w;
+        w(sw_got_c)                         := got_v;
+        w(sw_gnx_c)                         := gnx_v;
+        -- the configuration seen by this write (zero during the clearing sweep)
+        w(sw_gen_c) := ca_q(cw_gen_c) and not ini_busy;
+        x_wd        <= w;
 
     end process exec_proc;
 
@@ -824,7 +863,6 @@ begin
             e_op     <= OP_NONE;
             e_item   <= 0;
             e_last   <= 0;
-            e_hit    <= '0';
             sw_busy  <= '0';
             sw_ptr   <= 0;
             sw_tick  <= '0';
@@ -836,12 +874,6 @@ begin
             tick100  <= '0';
         elsif rising_edge(clk_i) then
             win_q <= window_open_i;
-            -- the host writes the configuration of the item read at this edge
-            if wr_cfg_ok = '1' and sel_item = e_ra then
-                e_hit <= '1';
-            else
-                e_hit <= '0';
-            end if;
 
             -- 100 us prescaler of the inhibit times
             tick100 <= '0';
@@ -922,20 +954,25 @@ begin
     -- RAMs
     -- ---------------------------------------------------------------------------------------------
     -- host configuration write: PDO_CFG (with the inhibit time kept) or PDO_INHIBIT (TPDO)
-    c_we <= wr_cfg_ok or (wr_inh and sel_t_ok);
-    c_wa <= sel_item;
+    h_we <= wr_cfg_ok or (wr_inh and sel_t_ok and not ini_busy);
+    c_we <= h_we or ini_busy;
+    c_wa <= ini_ptr when ini_busy = '1' else
+            sel_item;
 
-    cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view) is
+    cfg_wd_proc : process (wr_cfg, reg_wdata_i, shc_view, ini_busy) is
     begin
 
-        if wr_cfg = '1' then
-            c_wd <= shc_view(cw_inh_hi_c downto cw_inh_lo_c)
+        if ini_busy = '1' then
+            c_wd <= (others => '0');
+        elsif wr_cfg = '1' then
+            c_wd <= not shc_view(cw_gen_c) & shc_view(cw_inh_hi_c downto cw_inh_lo_c)
                     & reg_wdata_i(PDO_CFG_TT_HI_C downto PDO_CFG_TT_LO_C)
                     & reg_wdata_i(PDO_CFG_DLC_HI_C downto PDO_CFG_DLC_LO_C)
                     & reg_wdata_i(PDO_CFG_VALID_C) & reg_wdata_i(PDO_CFG_RTR_C)
                     & reg_wdata_i(PDO_CFG_COB_ID_HI_C downto PDO_CFG_COB_ID_LO_C);
         else
-            c_wd <= reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C)
+            c_wd <= shc_view(cw_gen_c)
+                    & reg_wdata_i(PDO_INHIBIT_TIME_100US_HI_C downto PDO_INHIBIT_TIME_100US_LO_C)
                     & shc_view(cw_tt_hi_c downto cw_cob_lo_c);
         end if;
 
@@ -978,9 +1015,9 @@ begin
         )
         port map (
             clk_i   => clk_i,
-            we_i    => x_we,
-            waddr_i => e_item,
-            wdata_i => x_wd,
+            we_i    => s_we,
+            waddr_i => s_wa,
+            wdata_i => s_wd,
             re_i    => '1',
             raddr_i => e_ra,
             rdata_o => sa_q
@@ -993,13 +1030,40 @@ begin
         )
         port map (
             clk_i   => clk_i,
-            we_i    => x_we,
-            waddr_i => e_item,
-            wdata_i => x_wd,
+            we_i    => s_we,
+            waddr_i => s_wa,
+            wdata_i => s_wd,
             re_i    => '1',
             raddr_i => hb_ra,
             rdata_o => sb_q
         );
+
+    -- state write port: the engine, or the clearing sweep (the engine idles meanwhile)
+    s_we <= x_we or ini_busy;
+    s_wa <= ini_ptr when ini_busy = '1' else
+            e_item;
+    s_wd <= x_wd; -- zero during the sweep (exec_proc)
+
+    -- clearing sweep after the reset: item ini_ptr of both RAMs zeroed each cycle
+    ini_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            ini_busy <= '1';
+            ini_q    <= '1';
+            ini_ptr  <= 0;
+        elsif rising_edge(clk_i) then
+            ini_q <= ini_busy;
+            if ini_busy = '1' then
+                if ini_ptr = n_items_c - 1 then
+                    ini_busy <= '0';
+                else
+                    ini_ptr <= ini_ptr + 1;
+                end if;
+            end if;
+        end if;
+
+    end process ini_proc;
 
     -- TPDO data: commit of the staging register into the inactive bank of the selected TPDO;
     -- the transmitter reads the active bank of its channel, the host select the latest
@@ -1111,12 +1175,12 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Host window: selection, shadows, snapshots, staging register
     -- ---------------------------------------------------------------------------------------------
-    shs_view_proc : process (shs_load, sh_st, sb_q, i_stale, i_fresh, sel_item) is
+    shs_view_proc : process (shs_load, sh_st, sb_q, i_stale, ini_q, sel_item) is
     begin
 
         if shs_load = '1' then
             shs_view <= sb_q(sw_c2_hi_c downto sw_seq_lo_c);
-            if i_fresh(sel_item) = '1' then
+            if ini_q = '1' then
                 shs_view <= (others => '0');
             elsif i_stale(sel_item) = '1' then
                 shs_view(sw_c2_hi_c downto sw_c1_lo_c) <= (others => '0');
@@ -1156,7 +1220,7 @@ begin
             if shs_load = '1' then
                 sh_st <= shs_view;
             end if;
-            if c_we = '1' then
+            if h_we = '1' then
                 sh_cfg <= c_wd;
             end if;
             if x_we = '1' and e_item = sel_item then
@@ -1382,7 +1446,7 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        if e_st = E_IDLE then
+                        if e_st = E_IDLE and ini_busy = '0' then
                             rx_st <= S_RX_MATCH;
                         else
                             rx_st <= S_RX_WAIT;
@@ -1391,7 +1455,7 @@ begin
 
                 when S_RX_WAIT =>
 
-                    if e_st = E_IDLE then
+                    if e_st = E_IDLE and ini_busy = '0' then
                         rx_st <= S_RX_MATCH;
                     end if;
 
@@ -1477,13 +1541,8 @@ begin
             r_new     <= (others => '0');
             r_ok      <= (others => '0');
             r_poll    <= (others => '0');
-            r_got     <= (others => '0');
-            r_gs      <= (others => '0');
             i_sp      <= (others => '0');
-            i_cfgn    <= (others => '0');
             i_stale   <= (others => '0');
-            i_cv      <= (others => '0');
-            i_fresh   <= (others => '1');
             ev_late_q <= '0';
             ev_miss_q <= '0';
         elsif rising_edge(clk_i) then
@@ -1496,19 +1555,12 @@ begin
                 eng_k := e_item = i;
                 if x_we = '1' and eng_k then
                     i_stale(i) <= '0';
-                    i_fresh(i) <= '0';
-                    if e_hit = '0' then
-                        i_cfgn(i) <= '0';
-                    end if;
                 end if;
                 if x_visit = '1' and eng_k then
                     i_sp(i) <= '0';
                 end if;
                 if clr = '1' then
                     i_stale(i) <= '1';
-                end if;
-                if c_we = '1' and sel_item = i then
-                    i_cv(i) <= '1';
                 end if;
 
             end loop;
@@ -1602,10 +1654,9 @@ begin
                     else
                         t_sync(k) <= '0';
                     end if;
-                    due_v     := '0';
-                    new_v     := '0';
-                    i_sp(k)   <= '0';
-                    i_cfgn(k) <= '1';
+                    due_v   := '0';
+                    new_v   := '0';
+                    i_sp(k) <= '0';
                 end if;
 
                 t_due(k)   <= due_v;
@@ -1619,13 +1670,9 @@ begin
                 host_k := sel_r_ok = '1' and sel_ch = k;
                 eng_k  := e_item = N_TPDO + k;
 
-                -- SYNC: the PDO flag of the closing period moves to the visit
+                -- SYNC: the visit closes the period (the PDO flags are in the state word)
                 if sync_i = '1' then
                     i_sp(N_TPDO + k) <= '1';
-                    r_gs(k)          <= r_got(k);
-                    r_got(k)         <= '0';
-                elsif x_visit = '1' and eng_k then
-                    r_gs(k) <= '0';
                 end if;
                 if x_poll = '1' and eng_k then
                     r_poll(k) <= '1';
@@ -1644,7 +1691,6 @@ begin
                 if x_store = '1' and eng_k then
                     r_new(k) <= '1';
                     r_ok(k)  <= '1';
-                    r_got(k) <= '1';
                 end if;
 
                 if started = '1' and p = N_TPDO + k then
@@ -1652,11 +1698,8 @@ begin
                 end if;
 
                 if wr_cfg_ok = '1' and host_k then
-                    r_got(k)           <= '0';
-                    r_gs(k)            <= '0';
-                    r_poll(k)          <= '0';
-                    i_sp(N_TPDO + k)   <= '0';
-                    i_cfgn(N_TPDO + k) <= '1';
+                    r_poll(k)        <= '0';
+                    i_sp(N_TPDO + k) <= '0';
                 end if;
 
             end loop;

@@ -1118,6 +1118,56 @@ async def run_host_input_refused(dut):
     assert await host.pdo_refused()
 
 
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_pdo_right_after_sync(dut):
+    """Purpose: a PDO stored in the cycles between a SYNC and that SYNC's visit of the channel
+    belongs to the new SYNC period, not to the one the visit closes.
+
+    Verifies: a TT 1 RPDO fed (directly on the rx port, the slaves' TPDOs off) per SYNC period
+    either nothing, a PDO 500 us after the SYNC, or a PDO sampled 1..2 cycles after the SYNC
+    (stored at most 4 cycles after it, before the housekeeping sweep reaches the RPDO: it
+    visits the N_TPDO TPDOs first, 2 cycles each, and a receive match goes first); MISSED
+    equals the reference model (a store at or after a SYNC edge counts for the period that
+    SYNC opens), and ev_missed_o strobes = PDO_CNT_MISSED. A PDO counted for the closing
+    period instead gives a different MISSED (the pattern has early PDOs followed by an empty
+    period).
+    """
+    tb = TB(dut)
+    await tb.start(slave_tpdos=False)
+    host = tb.host
+    await host.rpdo_config(0, 0x181, 6, 1)
+    msg = make_message(0x181, drive_payload(0x0F, 1))
+
+    def inject() -> None:
+        tb.rx_queue.append(msg)
+        tb._rx_event.set()
+
+    tb.sync_start()
+    # per SYNC period: M = PDO at 500 us, E = PDO right after the SYNC, - = none
+    for sym in "ME-EE--ME-M-EE--EM":
+        if sym == "M":
+            await tb.at_phase(500)
+            inject()
+        else:
+            await tb.wait_syncs(1)
+            if sym == "E":
+                inject()
+    await tb.wait_syncs(2)
+    tb.sync_stop()
+    await Timer(1, "ms")
+    stores = tb.stores(0x181, 6)
+    assert len(stores) == 11, stores
+    early = [t - tb.sync_edges[sync_index(t, tb.sync_edges)] for t in stores]
+    early = [d for d in early if d <= 4 * CLK_PS]
+    assert len(early) == 7, early
+    want = expected_missed(tb.sync_edges, stores, 1)
+    assert want >= 7, want
+    snap = await host.rpdo_read(0)
+    assert snap["missed"] == want and snap["seq"] == 11, snap
+    cnt = await tb.counters()
+    assert cnt["missed"] == want == len(tb.strobes["ev_missed_o"]), cnt
+
+
 @cocotb.test(timeout_time=50, timeout_unit="ms", expect_fail=True)
 async def run_od_checker_can_fail(dut):
     """Purpose: prove the slave OD / frame checker fails on a wrong expectation.
