@@ -50,3 +50,8 @@ set_instance_assignment -name IO_STANDARD "3.3-V LVTTL" -to {mcp_txrts_n_o[0]}
 set_instance_assignment -name IO_STANDARD "3.3-V LVTTL" -to {mcp_txrts_n_o[1]}
 set_instance_assignment -name IO_STANDARD "3.3-V LVTTL" -to {mcp_txrts_n_o[2]}
 set_instance_assignment -name IO_STANDARD "3.3-V LVTTL" -to mcp_reset_n_o
+
+# SO is high impedance while the MCP2510 does not drive it (CS high, its own reset and start-up):
+# a pull-up makes a read of an absent or resetting chip return FFh, a defined value (the FPGA's
+# weak pull-up here; an external 10 kOhm pull-up does the same)
+set_instance_assignment -name WEAK_PULL_UP_RESISTOR ON -to spi_miso_i

@@ -302,12 +302,16 @@ begin
 
     end process engine_proc;
 
-    -- MISO input register (no reset: datapath, only used when sampled inside a transaction)
+    -- MISO input register (no reset: datapath, only used when sampled inside a transaction).
+    -- SO is high impedance whenever the MCP2510 does not drive it (CS high, and during its own
+    -- reset and oscillator start-up, when a READ may still be running): the board pulls it up
+    -- (docs/mcp2510_spi_master.md), so a weak high ('H') is read as '1'; to_X01 is a plain wire
+    -- in synthesis
     miso_reg_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
-            miso_q <= spi_miso_i;
+            miso_q <= to_X01(spi_miso_i);
         end if;
 
     end process miso_reg_proc;

@@ -629,6 +629,72 @@ async def run_chip_reset_detected_and_reinitialised(dut):
     await Timer(1, "ns")
 
 
+async def wait_int_read_address(dut) -> None:
+    """Return at the SCK rising edge of the first address bit of the master's next INT read: a
+    READ (03h) that starts while INT# is low (read from the pins; RX buffers are signalled on
+    RXnBF#, so a READ started under INT# is the CANINTF/EFLG read)."""
+    while True:
+        await ValueChange(dut.spi_cs_n_o)
+        if int(dut.spi_cs_n_o.value) != 0 or int(dut.mcp_int_n_i.value) != 0:
+            continue
+        instr = 0
+        for _ in range(8):
+            await RisingEdge(dut.spi_sck_o)
+            instr = (instr << 1) | int(dut.spi_mosi_o.value)
+        if instr == 0x03:
+            await RisingEdge(dut.spi_sck_o)
+            if int(dut.spi_cs_n_o.value) == 0:
+                return
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_chip_reset_during_int_read(dut):
+    """Purpose: a RESET-pin pulse of the MCP2510 while the master sends the address byte of its
+    INT read (READ of CANINTF/EFLG at 2Ch): the chip abandons the access and releases SO, which
+    the board pulls up, so both bytes read FFh (fuzz seed 1002: with SO floating the unknown bits
+    became the mask of the following BIT MODIFY of CANINTF, an undefined byte on MOSI).
+
+    Verifies, for two pulses: MOSI never carries an unknown level (the pin bridge fails the test
+    on one), the master's RESET instruction follows within CHIP_LOST_BOUND_US, CNT_CAN_ERROR
+    grows by 1 or 2 per loss (the loss, plus the ERRIF of the FFh INT read the reset cut short),
+    SYNC resumes (ID 080h, DLC 0), no ID 000h frame from the master, and no
+    chip violation except the accesses the chip ignored during its own start-up.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    tb.chip.strict = False
+    await boot(tb)
+    await tb.host.sync_config(period_us=400)
+    await wait_syncs(tb, 0, 3)
+    ctrl = await tb.host.read("CTRL")  # keep SYNC_EN
+    await tb.host.write("CTRL", ctrl | R.CTRL_CLR_COUNTERS)
+    cnt = 0
+    for k in range(2):
+        n_rst = len(resets(tb))
+        await wait_int_read_address(dut)
+        t_glitch = sim_time_ps()
+        tb.chip.reset_pin(t_glitch)
+        await tb.wait_for(lambda n=n_rst: len(resets(tb)) > n, 2 * CHIP_LOST_BOUND_US, 1,
+                          "RESET instruction after the chip reset")
+        lat_us = (resets(tb)[n_rst] - t_glitch) / PS_PER_US
+        dut._log.info("chip reset %d in an INT read: RESET instruction %.1f us after it", k,
+                      lat_us)
+        assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
+        await tb.wait_master_ready()
+        t_init = sim_time_ps()
+        await wait_syncs(tb, t_init, 3)
+        check_syncs(tb, t_init, 3, 0)
+        now = await tb.host.read("CNT_CAN_ERROR")
+        assert now - cnt in (1, 2), f"CNT_CAN_ERROR {cnt} -> {now} for chip reset {k}"
+        cnt = now
+    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
+    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
+    other = [v for v in tb.chip.violations if "RESET pin" not in v
+             and "oscillator start-up time" not in v]
+    assert other == [], other
+    assert tb.pins.slave.violations == [], tb.pins.slave.violations
+    await Timer(1, "ns")
+
+
 class _RecordHook(list):
     """The bus's record list, calling ``hook(record)`` when a record is appended (at the end of
     the record's intermission, before the next arbitration)."""

@@ -110,7 +110,8 @@ class TB:
         self.peer = QueueNode("peer", BITRATE)
         self.bus.attach(self.peer)
         self.pins = Mcp2510Pins(self.chip, self.clock, cs_n=dut.spi_cs_n_o, sck=dut.spi_sck_o,
-                                mosi=dut.spi_mosi_o, miso=dut.spi_miso_i, spec=spec)
+                                mosi=dut.spi_mosi_o, miso=dut.spi_miso_i, spec=spec,
+                                released="Z")  # no pull-up: SO released reads as unknown
         for sig in (dut.tx_valid_i, dut.tx_data_i, dut.tx_last_i, dut.tx_end_i):
             sig.value = 0
 

@@ -62,12 +62,14 @@ class Mcp2510Pins:
         txrts_n: SimHandleBase | None = None,
         reset_n: SimHandleBase | None = None,
         spec: SpiTimingSpec | None = None,
+        released: str = "H",
     ) -> None:
         self.chip = chip
         self.clock = clock
         self.slave = SpiPinSlave(_SyncedDevice(chip, clock), spec or SpiTimingSpec(),
                                  name=f"{chip.name}.spi")
-        self.spi = SpiPinBridge(self.slave, cs_n=cs_n, sck=sck, mosi=mosi, miso=miso)
+        self.spi = SpiPinBridge(self.slave, cs_n=cs_n, sck=sck, mosi=mosi, miso=miso,
+                                released=released)
         self._int_n, self._rx0bf_n, self._rx1bf_n = int_n, rx0bf_n, rx1bf_n
         chip.on_pins_changed = self._drive_outputs
         self._drive_outputs()

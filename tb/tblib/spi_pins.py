@@ -1,8 +1,10 @@
 """cocotb bridge between DUT SPI pins and a pure-Python :class:`~sim_models.spi_slave.SpiPinSlave`.
 
 It wakes only on CS, SCK and MOSI changes (never per clock), forwards the levels with the
-simulated time in ps, and drives MISO with what the slave model returns ('Z' when the device
-does not drive SO). A violation raised by the model fails the running cocotb test.
+simulated time in ps, and drives MISO with what the slave model returns; when the device does
+not drive SO the pin is pulled up, as the integration requires (weak high 'H', read as '1' by the
+master's input register; 'Z' would model a board without the pull-up). A violation raised by the
+model fails the running cocotb test.
 
 Each pin has its own watcher coroutine waiting on one ``ValueChange``: a ``First`` over the
 three triggers would start and cancel a task per trigger on every edge, which made the bridge
@@ -20,8 +22,6 @@ from cocotb.types import Logic
 from sim_models.spi_slave import SpiPinSlave, SpiViolation
 from tb.tblib.model_clock import sim_time_ps
 
-_HIGH_Z = Logic("Z")
-
 
 class SpiPinBridge:
     """Connect ``cs_n``/``sck``/``mosi`` outputs and the ``miso`` input of a DUT to a slave."""
@@ -34,13 +34,18 @@ class SpiPinBridge:
         sck: SimHandleBase,
         mosi: SimHandleBase,
         miso: SimHandleBase,
+        released: str = "H",
     ) -> None:
+        """``released``: the level of SO when the slave does not drive it, 'H' (the board's
+        pull-up, the default) or 'Z' (no pull-up: lets a bench see where the slave releases SO,
+        which the master's input register then reads as 'X')."""
         self.slave = slave
+        self._released = Logic(released)
         self._cs_n = cs_n
         self._sck = sck
         self._mosi = mosi
         self._miso = miso
-        self._miso.value = _HIGH_Z
+        self._miso.value = self._released
         #: levels and time of the last update (two pins changing together wake two watchers)
         self._last: tuple[int, int, int, int] | None = None
         self._error: BaseException | None = None
@@ -101,4 +106,4 @@ class SpiPinBridge:
         self._last = key
         self.slave.update(t_ps, cs_n=c, sck=s, mosi=m)
         out = self.slave.miso
-        self._miso.value = _HIGH_Z if out is None else out
+        self._miso.value = self._released if out is None else out
