@@ -376,7 +376,7 @@ def test_sdc_checker_can_fail():
         files["mcp2510_spi_master.vhd"], r"(\n\s*signal miso_q\s*:)",
         "\n    signal cs_sync : std_logic_vector(1 downto 0);\\1")
     bad_files["mcp2510_spi_master.vhd"] = _sub_once(
-        bad_files["mcp2510_spi_master.vhd"], r"(\n\s*miso_q <= spi_miso_i;)",
+        bad_files["mcp2510_spi_master.vhd"], r"(\n\s*miso_q <= to_X01\(spi_miso_i\);)",
         "\n            cs_sync <= cs_sync(0) & spi_miso_i;\\1")
     bad_sdc = sdc.replace("*canopen_master_top:*|mcp2510_ctrl:*|int_sync[0]",
                           "*canopen_master_top:*|mcp2510_ctrl:ctrl_inst|int_sync[0]")
