@@ -560,6 +560,33 @@ async def run_rx_kept_while_sync_waits(dut):
 CHIP_LOST_BOUND_US = 700
 
 
+async def reset_chip_and_await_recovery(tb: SystemTB, what: str) -> float:
+    """Pulse the chip's RESET pin now, wait for the master's RESET instruction and assert it
+    came within CHIP_LOST_BOUND_US, then wait until the master is ready again. Returns the
+    latency from the pulse to the RESET instruction in us."""
+    n_rst = len(resets(tb))
+    t_glitch = sim_time_ps()
+    tb.chip.reset_pin(t_glitch)
+    await tb.wait_for(lambda: len(resets(tb)) > n_rst, 2 * CHIP_LOST_BOUND_US, 1,
+                      "RESET instruction after the chip reset")
+    lat_us = (resets(tb)[n_rst] - t_glitch) / PS_PER_US
+    tb.dut._log.info("chip reset %s: RESET instruction %.1f us after the pulse", what, lat_us)
+    assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
+    await tb.wait_master_ready()
+    return lat_us
+
+
+def check_chip_resets_clean(tb: SystemTB) -> None:
+    """After RESET-pin pulses: no ID 000h frame from the master, no chip violation except the
+    accesses the chip ignored around the pulse and during its start-up, no SPI pin violation."""
+    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
+    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
+    other = [v for v in tb.chip.violations if "RESET pin" not in v
+             and "oscillator start-up time" not in v]
+    assert other == [], other
+    assert tb.pins.slave.violations == [], tb.pins.slave.violations
+
+
 @cocotb.test(timeout_time=100, timeout_unit="ms")
 async def run_chip_reset_detected_and_reinitialised(dut):
     """Purpose: a reset of the MCP2510 through its RESET pin that the master did not cause
@@ -600,16 +627,7 @@ async def run_chip_reset_detected_and_reinitialised(dut):
         await Timer(97 + 131 * k, "us")
         for _ in range(1 + 37 * k):
             await RisingEdge(dut.spi_sck_o)
-        n_rst = len(resets(tb))
-        t_glitch = sim_time_ps()
-        tb.chip.reset_pin(t_glitch)
-        await tb.wait_for(lambda n=n_rst: len(resets(tb)) > n, 2 * CHIP_LOST_BOUND_US, 1,
-                          "RESET instruction after the chip reset")
-        t_rst = resets(tb)[n_rst]
-        lat_us = (t_rst - t_glitch) / PS_PER_US
-        dut._log.info("chip reset %d: RESET instruction %.1f us after the pulse", k, lat_us)
-        assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
-        await tb.wait_master_ready()
+        await reset_chip_and_await_recovery(tb, str(k))
         t_init = sim_time_ps()
         await wait_syncs(tb, t_init, 4)
         check_syncs(tb, t_init, 4, 0)
@@ -620,12 +638,7 @@ async def run_chip_reset_detected_and_reinitialised(dut):
         assert irq & R.IRQ_STATUS_CAN_ERROR and irq & R.IRQ_STATUS_INIT, hex(irq)
         assert await tb.host.read("CNT_CAN_ERROR") == k + 1
     await check_every_sync_fired(tb, pins)
-    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
-    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
-    other = [v for v in tb.chip.violations if "RESET pin" not in v
-             and "oscillator start-up time" not in v]
-    assert other == [], other
-    assert tb.pins.slave.violations == [], tb.pins.slave.violations
+    check_chip_resets_clean(tb)
     await Timer(1, "ns")
 
 
@@ -669,29 +682,15 @@ async def run_chip_reset_during_int_read(dut):
     await tb.host.write("CTRL", ctrl | R.CTRL_CLR_COUNTERS)
     cnt = 0
     for k in range(2):
-        n_rst = len(resets(tb))
         await wait_int_read_address(dut)
-        t_glitch = sim_time_ps()
-        tb.chip.reset_pin(t_glitch)
-        await tb.wait_for(lambda n=n_rst: len(resets(tb)) > n, 2 * CHIP_LOST_BOUND_US, 1,
-                          "RESET instruction after the chip reset")
-        lat_us = (resets(tb)[n_rst] - t_glitch) / PS_PER_US
-        dut._log.info("chip reset %d in an INT read: RESET instruction %.1f us after it", k,
-                      lat_us)
-        assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
-        await tb.wait_master_ready()
+        await reset_chip_and_await_recovery(tb, f"{k} in an INT read")
         t_init = sim_time_ps()
         await wait_syncs(tb, t_init, 3)
         check_syncs(tb, t_init, 3, 0)
         now = await tb.host.read("CNT_CAN_ERROR")
         assert now - cnt in (1, 2), f"CNT_CAN_ERROR {cnt} -> {now} for chip reset {k}"
         cnt = now
-    own_000 = [r for r in tb.frames(0x000) if r.sender == CHIP]
-    assert own_000 == [], f"the master sent ID 000h frames: {own_000}"
-    other = [v for v in tb.chip.violations if "RESET pin" not in v
-             and "oscillator start-up time" not in v]
-    assert other == [], other
-    assert tb.pins.slave.violations == [], tb.pins.slave.violations
+    check_chip_resets_clean(tb)
     await Timer(1, "ns")
 
 
