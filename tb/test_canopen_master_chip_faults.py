@@ -694,6 +694,76 @@ async def run_chip_reset_during_int_read(dut):
     await Timer(1, "ns")
 
 
+async def wait_txb_load_address(dut) -> int:
+    """Return at the SCK rising edge of the last address bit of the master's next WRITE that
+    loads TXB0 or TXB1 (address 30h/31h/40h/41h: a frame to send, RTS follows); returns the
+    buffer number."""
+    while True:
+        await ValueChange(dut.spi_cs_n_o)
+        if int(dut.spi_cs_n_o.value) != 0:
+            continue
+        word = 0
+        for _ in range(16):
+            await RisingEdge(dut.spi_sck_o)
+            word = (word << 1) | int(dut.spi_mosi_o.value)
+        if word >> 8 == 0x02 and word & 0xFF in (0x30, 0x31, 0x40, 0x41):
+            return ((word & 0xFF) >> 4) - 3
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_chip_reset_between_tx_load_and_rts(dut):
+    """Purpose: a RESET-pin pulse of the MCP2510 while the master loads a transmit buffer
+    (fuzz seed 1000): the chip drops the rest of the WRITE, is ready again before the WRITE
+    ends, and the master's RTS requests a buffer not written since the reset. In configuration
+    mode the chip does not transmit; the master's re-initialisation starts with the RESET
+    instruction, which clears the request, so the undefined buffer never reaches the bus.
+
+    Verifies, for two pulses (SDO requests of channel 0, TXB1): the RTS reached the chip after
+    its start-up time with the request pending in configuration mode (the scenario happened);
+    the master's RESET instruction follows within CHIP_LOST_BOUND_US and the request is gone
+    after it; the chip model (it checks a request made in configuration mode when the chip
+    enters a mode that transmits) sees no violation but the accesses ignored around the
+    pulse; the master sends no frame but SYNC 080h and SDO requests 601h/602h (no undefined
+    contents); the SDO transfer ends (success, or abort/timeout); SYNC resumes.
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    tb.chip.strict = False
+    await boot(tb)
+    await tb.host.sync_config(period_us=400)
+    await wait_syncs(tb, 0, 3)
+    t0 = sim_time_ps()
+    for k in range(2):
+        n_rst = len(resets(tb))
+        up = cocotb.start_soon(sdo_upload_outcome(tb, 1 + k, 20))
+        n = await wait_txb_load_address(dut)
+        t_glitch = sim_time_ps()
+        tb.chip.reset_pin(t_glitch)
+        ctrl = MR.TXB0CTRL + 0x10 * n
+        await tb.wait_for(lambda: tb.chip.peek(ctrl) & MR.TXBNCTRL_TXREQ or
+                          len(resets(tb)) > n_rst, 100, 0.2, "the RTS after the load")
+        assert tb.chip.peek(ctrl) & MR.TXBNCTRL_TXREQ, "the RTS did not reach the chip"
+        assert tb.chip.opmode == MR.OPMODE_CONFIG
+        assert sim_time_ps() - t_glitch >= tb.chip.ost_ps
+        await tb.wait_for(lambda: len(resets(tb)) > n_rst, 2 * CHIP_LOST_BOUND_US, 1,
+                          "RESET instruction after the chip reset")
+        lat_us = (resets(tb)[n_rst] - t_glitch) / PS_PER_US
+        dut._log.info("chip reset %d in the load of TXB%d: RESET instruction %.1f us after "
+                      "the pulse", k, n, lat_us)
+        assert lat_us <= CHIP_LOST_BOUND_US, f"detected after {lat_us:.1f} us"
+        assert not tb.chip.peek(ctrl) & MR.TXBNCTRL_TXREQ
+        await tb.wait_master_ready()
+        t_init = sim_time_ps()
+        await wait_syncs(tb, t_init, 3)
+        check_syncs(tb, t_init, 3, 0)
+        await up
+        err, _ = up.result()
+        dut._log.info("SDO upload %d: %s", k, err or "done")
+    own = {r.msg.arbitration_id for r in tb.frames() if r.sender == CHIP and r.t_start_ps > t0}
+    assert own <= {0x080, 0x601, 0x602}, f"unexpected frames of the master: {sorted(own)}"
+    check_chip_resets_clean(tb)
+    await Timer(1, "ns")
+
+
 class _RecordHook(list):
     """The bus's record list, calling ``hook(record)`` when a record is appended (at the end of
     the record's intermission, before the next arbitration)."""

@@ -185,6 +185,9 @@ class Mcp2510(CanNode):
         self._inflight: tuple[int, can.Message] | None = None
         self._abat_abort: set[int] = set()
         self._tx_written: list[set[int]] = [set(), set(), set()]
+        # buffers requested in configuration mode: their contents are checked when the chip
+        # can first transmit them (normal or loopback mode), not at the request
+        self._tx_check_deferred: set[int] = set()
         self._intf_unseen = 0
         self._pins = (1, 1, 1)
         # SPI
@@ -341,6 +344,7 @@ class Mcp2510(CanNode):
         self._inflight = None
         self._abat_abort.clear()
         self._tx_written = [set(), set(), set()]
+        self._tx_check_deferred.clear()
         self._intf_unseen = 0
         self.reset_fault_confinement()
         self._ost_until_ps = t_ps + self.ost_ps
@@ -557,6 +561,11 @@ class Mcp2510(CanNode):
         if pending:
             # the chip sends whatever the registers hold when the frame starts
             self._tx_msgs[n] = self._build_tx_msg(n)
+            if self._opmode == R.OPMODE_CONFIG:
+                # no frame can be on its way in configuration mode: the contents are checked
+                # when the chip can first transmit them
+                self._tx_check_deferred.add(n)
+                return
             self._violation(
                 t,
                 f"TXB{n} is written while TXB{n}CTRL.TXREQ is set; the buffer must not be "
@@ -605,7 +614,14 @@ class Mcp2510(CanNode):
         ctrl_addr = _TXB_BASES[n]
         if self._regs[ctrl_addr] & R.TXBNCTRL_TXREQ:
             return
-        problems = self._tx_problems(n)
+        if self._opmode == R.OPMODE_CONFIG:
+            # configuration mode does not transmit: a RESET (instruction or pin) before the
+            # chip leaves it clears the request, so undefined contents matter only if the
+            # request is still pending when the chip enters a transmitting mode
+            problems = []
+            self._tx_check_deferred.add(n)
+        else:
+            problems = self._tx_problems(n)
         ctrl = self._regs[ctrl_addr]
         ctrl &= ~(R.TXBNCTRL_ABTF | R.TXBNCTRL_MLOA | R.TXBNCTRL_TXERR)
         self._regs[ctrl_addr] = ctrl | R.TXBNCTRL_TXREQ
@@ -774,6 +790,15 @@ class Mcp2510(CanNode):
             # DS21291 section 10.1: error counters are cleared in configuration mode
             self.reset_fault_confinement()
             self._refresh_eflg(t, raise_errif=False)
+        if old == R.OPMODE_CONFIG and new in (R.OPMODE_NORMAL, R.OPMODE_LOOPBACK):
+            for n in sorted(self._tx_check_deferred):
+                if self._regs[_TXB_BASES[n]] & R.TXBNCTRL_TXREQ:
+                    problems += [
+                        f"{p} (requested in configuration mode, pending at the change to "
+                        f"{MODE_NAMES[new]} mode)"
+                        for p in self._tx_problems(n)
+                    ]
+            self._tx_check_deferred.clear()
         if new == R.OPMODE_NORMAL and self.bus is not None:
             self.bus.request_tx()
         elif new == R.OPMODE_LOOPBACK:

@@ -192,6 +192,7 @@ def test_two_chips_arbitrate(sched: Scheduler, bus: CanBus, chip: Mcp2510) -> No
 
 
 def test_writing_a_pending_buffer_is_a_violation(chip: Mcp2510) -> None:
+    set_mode(chip, R.OPMODE_NORMAL)  # in configuration mode no frame can be on its way
     load_tx(chip, 0, std(0x40, b"\x01"))
     rts(chip, 0)
     with pytest.raises(Mcp2510Error, match="while TXB0CTRL.TXREQ is set"):
@@ -200,6 +201,7 @@ def test_writing_a_pending_buffer_is_a_violation(chip: Mcp2510) -> None:
 
 def test_uninitialised_buffer_and_bad_dlc(sched: Scheduler) -> None:
     chip = new_chip(sched, strict=False)
+    set_mode(chip, R.OPMODE_LOOPBACK)
     chip.spi_write(R.TXB1SIDH, [0x10, 0x00])
     chip.spi_write(R.TXB1DLC, [0x02, 0xAA])  # D1 never written
     rts(chip, 1)
@@ -216,3 +218,30 @@ def test_tx_request_in_listen_only_mode_is_flagged(chip: Mcp2510) -> None:
     load_tx(chip, 0, std(0x50))
     with pytest.raises(Mcp2510Error, match="cannot transmit"):
         rts(chip, 0)
+
+
+def test_request_in_configuration_mode_is_checked_when_the_chip_can_send(sched: Scheduler) -> None:
+    """A request of an unwritten buffer in configuration mode (e.g. an RTS that reached a chip
+    reset behind the host's back) is harmless if a RESET clears it before the chip leaves
+    configuration mode, and a violation if it is still pending when the chip can send."""
+    chip = new_chip(sched, strict=False)
+    configure(chip, BITRATE, opmode=None)
+    chip.spi_write(R.TXB0SIDH, [0x10])  # SIDL and DLC never written
+    rts(chip, 0)
+    chip.spi_write(R.TXB0D0, [0x55])  # a pending buffer, but nothing can be on the wire
+    assert chip.violations == []
+    chip.spi_transfer(bytes([R.INSTR_RESET]))
+    sched.run_until(max(sched.now_ps, chip.ready_ps))
+    configure(chip, BITRATE, opmode=R.OPMODE_LOOPBACK)
+    assert chip.violations == []  # the RESET cleared the request
+
+    chip.spi_transfer(bytes([R.INSTR_RESET]))
+    sched.run_until(max(sched.now_ps, chip.ready_ps))
+    configure(chip, BITRATE, opmode=None)
+    chip.spi_write(R.TXB0SIDH, [0x10])
+    rts(chip, 0)
+    assert chip.violations == []
+    set_mode(chip, R.OPMODE_LOOPBACK)  # the request survives into a mode that transmits
+    assert len(chip.violations) == 1
+    assert "TXB0SIDL, TXB0DLC not written since reset" in chip.violations[0]
+    assert "requested in configuration mode" in chip.violations[0]
