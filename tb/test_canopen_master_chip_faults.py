@@ -739,12 +739,12 @@ async def run_chip_reset_between_tx_load_and_rts(dut):
         t_glitch = sim_time_ps()
         tb.chip.reset_pin(t_glitch)
         ctrl = MR.TXB0CTRL + 0x10 * n
-        await tb.wait_for(lambda: tb.chip.peek(ctrl) & MR.TXBNCTRL_TXREQ or
-                          len(resets(tb)) > n_rst, 100, 0.2, "the RTS after the load")
+        await tb.wait_for(lambda c=ctrl, n0=n_rst: tb.chip.peek(c) & MR.TXBNCTRL_TXREQ or
+                          len(resets(tb)) > n0, 100, 0.2, "the RTS after the load")
         assert tb.chip.peek(ctrl) & MR.TXBNCTRL_TXREQ, "the RTS did not reach the chip"
         assert tb.chip.opmode == MR.OPMODE_CONFIG
         assert sim_time_ps() - t_glitch >= tb.chip.ost_ps
-        await tb.wait_for(lambda: len(resets(tb)) > n_rst, 2 * CHIP_LOST_BOUND_US, 1,
+        await tb.wait_for(lambda n0=n_rst: len(resets(tb)) > n0, 2 * CHIP_LOST_BOUND_US, 1,
                           "RESET instruction after the chip reset")
         lat_us = (resets(tb)[n_rst] - t_glitch) / PS_PER_US
         dut._log.info("chip reset %d in the load of TXB%d: RESET instruction %.1f us after "
