@@ -93,6 +93,7 @@ entity canopen_master_core is
         ctl_tx_err_i     : in    std_logic_vector(2 downto 0);  -- strobe: TXERR
         ctl_tx_errors_i  : in    std_logic;                     -- strobe: own frame destroyed
         ctl_tx_drop_i    : in    std_logic_vector(2 downto 0);  -- strobe: fire not loaded
+        ctl_tx_aborted_i : in    std_logic_vector(2 downto 0);  -- strobe: cancelled, not sent
         -- mcp2510_ctrl: receive
         ctl_rx_valid_i : in    std_logic;                     -- FIFO head valid
         ctl_rx_ready_o : out   std_logic;                     -- pop
@@ -251,6 +252,15 @@ architecture rtl of canopen_master_core is
     -- the cancel of TXB1 was asked for (until TXB1 is free), and the pulse towards the chip
     signal cancel_sent  : std_logic;
     signal cancel_pulse : std_logic;
+    -- TXB0 holds, or is being loaded with, a synchronous TPDO (the PDO engine's tx_sync_o when
+    -- the frame was taken): if a SYNC fires before it started it would go out after that SYNC,
+    -- in the next cycle, so it is cancelled (pdo_cancel_req until TXB0 is pending, then one
+    -- pulse) and, if the controller reports it cancelled, the engine counts it late
+    signal txb0_sync        : std_logic;
+    signal txb0_loading     : std_logic;
+    signal pdo_cancel_req   : std_logic;
+    signal pdo_cancel_sent  : std_logic;
+    signal pdo_cancel_pulse : std_logic;
     -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
     signal gen_src : natural range 0 to 5;
     -- host NMT command waiting
@@ -447,15 +457,17 @@ architecture rtl of canopen_master_core is
     signal window_open : std_logic;
     -- block inputs gated by the protocol mode (CTRL.OMNI): the PDO engine and the node monitor
     -- run in CANopen mode, the Omni-ID engine in Omni-ID mode
-    signal mon_enable  : std_logic;
-    signal pe_sync     : std_logic;
-    signal pe_reg_we   : std_logic;
-    signal pe_rx_valid : std_logic;
-    signal pe_tx_ack   : std_logic;
-    signal om_cycle    : std_logic;
-    signal om_reg_we   : std_logic;
-    signal om_rx_valid : std_logic;
-    signal om_tx_ack   : std_logic;
+    signal mon_enable      : std_logic;
+    signal pe_sync         : std_logic;
+    signal pe_reg_we       : std_logic;
+    signal pe_rx_valid     : std_logic;
+    signal pe_tx_ack       : std_logic;
+    signal pe_tx_sync      : std_logic;
+    signal pe_tx_cancelled : std_logic;
+    signal om_cycle        : std_logic;
+    signal om_reg_we       : std_logic;
+    signal om_rx_valid     : std_logic;
+    signal om_tx_ack       : std_logic;
 
     signal ev_node_any    : std_logic;
     signal ev_can_error   : std_logic;
@@ -660,6 +672,11 @@ begin
             tx_sdo_req       <= '0';
             cancel_sent      <= '0';
             cancel_pulse     <= '0';
+            txb0_sync        <= '0';
+            txb0_loading     <= '0';
+            pdo_cancel_req   <= '0';
+            pdo_cancel_sent  <= '0';
+            pdo_cancel_pulse <= '0';
             gen_src          <= 0;
             nmt_pending      <= '0';
             nmt_refused      <= '0';
@@ -852,6 +869,27 @@ begin
             if ctl_tx_pending_i(1) = '0' then
                 cancel_sent <= '0';
             end if;
+            -- a synchronous TPDO not started when the next SYNC fires is withdrawn from TXB0
+            if pe_tx_ack = '1' then
+                txb0_sync    <= pe_tx_sync;
+                txb0_loading <= '1';
+            end if;
+            if (in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_pdo_c)
+               or ctl_init_done_i = '0' then
+                txb0_loading <= '0';
+            end if;
+            pdo_cancel_pulse <= pdo_cancel_req and ctl_tx_pending_i(0);
+            if pdo_cancel_req = '1' and ctl_tx_pending_i(0) = '1' then
+                pdo_cancel_req  <= '0';
+                pdo_cancel_sent <= '1';
+            end if;
+            if ctl_tx_pending_i(0) = '0' and txb0_loading = '0' then
+                -- TXB0 free: nothing to cancel, the outcome of a cancel is known
+                pdo_cancel_req  <= '0';
+                pdo_cancel_sent <= '0';
+            elsif sync_fire = '1' and txb0_sync = '1' and omni_en = '0' then
+                pdo_cancel_req <= not pdo_cancel_sent;
+            end if;
             -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
             -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
             if ctl_init_done_i = '0' then
@@ -1007,7 +1045,7 @@ begin
     ctl_tx_dlc_o    <= tx_frame.dlc;
     ctl_tx_data_o   <= tx_frame.data;
     ctl_tx_fire_o   <= (2 => sync_fire, others => '0');
-    ctl_tx_cancel_o <= (1 => cancel_pulse, others => '0');
+    ctl_tx_cancel_o <= (0 => pdo_cancel_pulse, 1 => cancel_pulse, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
     enter_sdo   <= in_sdo_proc and state_change;
@@ -1218,6 +1256,8 @@ begin
     pe_reg_we   <= pdo_reg_we and not omni_en;
     pe_rx_valid <= enter_pdo and not omni_en;
     pe_tx_ack   <= pdo_tx_ack and not omni_en;
+    -- the synchronous TPDO withdrawn from TXB0 by a SYNC (not sent: counted late)
+    pe_tx_cancelled <= ctl_tx_aborted_i(0) and pdo_cancel_sent;
 
     pdo_inst : entity work.canopen_pdo_engine
         generic map (
@@ -1249,6 +1289,8 @@ begin
             tx_dlc_o        => pe_tx_dlc,
             tx_data_o       => pe_tx_data,
             tx_ack_i        => pe_tx_ack,
+            tx_sync_o       => pe_tx_sync,
+            tx_cancelled_i  => pe_tx_cancelled,
             ev_rx_o         => open,
             ev_len_err_o    => open,
             ev_missed_o     => open,

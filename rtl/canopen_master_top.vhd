@@ -92,6 +92,7 @@ architecture rtl of canopen_master_top is
     signal tx_data     : std_logic_vector(63 downto 0);
     signal tx_fire     : std_logic_vector(2 downto 0);
     signal tx_cancel   : std_logic_vector(2 downto 0);
+    signal tx_aborted  : std_logic_vector(2 downto 0);
     signal tx_pending  : std_logic_vector(2 downto 0);
     signal tx_done     : std_logic_vector(2 downto 0);
     signal tx_err      : std_logic_vector(2 downto 0);
@@ -169,6 +170,7 @@ begin
             ctl_tx_data_o       => tx_data,
             ctl_tx_fire_o       => tx_fire,
             ctl_tx_cancel_o     => tx_cancel,
+            ctl_tx_aborted_i    => tx_aborted,
             ctl_tx_loaded_i     => tx_loaded,
             ctl_tx_pending_i    => tx_pending,
             ctl_tx_done_i       => tx_done,
@@ -228,7 +230,7 @@ begin
             tx_err_o         => tx_err,
             tx_errors_o      => tx_errors,
             tx_arb_lost_o    => open,
-            tx_aborted_o     => open,
+            tx_aborted_o     => tx_aborted,
             tx_fire_drop_o   => tx_drop,
             rx_valid_o       => rx_valid,
             rx_ready_i       => rx_ready,

@@ -23,7 +23,9 @@
 --     is counted as missed; RTR poll sends an RTR on the COB-ID after every SYNC.
 --   * Frames to send are flags (one per TPDO and per RPDO poll) served round robin by a scan
 --     pointer, one frame at a time on tx_req_o / tx_ack_i: none is lost, none waits more than
---     one round. A request is never withdrawn.
+--     one round. A request is never withdrawn; tx_sync_o marks a synchronous TPDO, which the
+--     core withdraws from the controller when the next SYNC fires before it started
+--     (tx_cancelled_i): counted late like a frame dropped at the window end.
 --   * Per-channel configuration and counters live in RAMs (configuration, state: copy A read
 --     by the engine, copy B by the host select); flags that are register bitmaps or must
 --     change at the very edge of a SYNC, commit or frame start stay flip-flops. One shared
@@ -88,6 +90,10 @@ entity canopen_pdo_engine is
         tx_dlc_o  : out   std_logic_vector(3 downto 0);  -- data length code
         tx_data_o : out   std_logic_vector(63 downto 0); -- byte k at 8k+7..8k
         tx_ack_i  : in    std_logic;                     -- strobe: frame taken
+        tx_sync_o : out   std_logic;                     -- with tx_req_o: synchronous TPDO
+        -- strobe: the last frame taken was withdrawn before it started (a SYNC came first);
+        -- a TPDO is counted late
+        tx_cancelled_i : in    std_logic;
         -- events (1-cycle strobes)
         ev_rx_o      : out   std_logic; -- a PDO was stored
         ev_len_err_o : out   std_logic; -- a PDO with a wrong DLC was dropped
@@ -429,6 +435,14 @@ architecture rtl of canopen_pdo_engine is
     signal p : natural range 0 to n_items_c - 1;
     -- item being sent
     signal txi : natural range 0 to n_items_c - 1;
+    -- the frame on tx_req_o is a synchronous TPDO (tx_sync_o)
+    signal tx_sync : std_logic;
+    -- the TPDO channel of the last frame taken, and whether that frame was a synchronous TPDO:
+    -- the channel a tx_cancelled_i strobe counts late
+    signal txb_k    : natural range 0 to N_TPDO - 1;
+    signal txb_sync : std_logic;
+    -- tx_cancelled_i for a synchronous TPDO: a late event for channel txb_k
+    signal tx_cancel_late : std_logic;
     -- frame registers
     signal tx_req  : std_logic;
     signal tx_id   : std_logic_vector(10 downto 0);
@@ -932,7 +946,7 @@ begin
             if tick100 = '1' then
                 tick_req <= '1';
             end if;
-            if win_end = '1' then
+            if win_end = '1' or tx_cancel_late = '1' then
                 late_req <= '1';
             end if;
             if sw_busy = '0' and (sync_req = '1' or tick_req = '1' or late_req = '1') then
@@ -941,7 +955,7 @@ begin
                 sw_tick  <= tick_req;
                 sync_req <= sync_i;
                 tick_req <= tick100;
-                late_req <= win_end;
+                late_req <= win_end or tx_cancel_late;
             end if;
         end if;
 
@@ -1301,10 +1315,12 @@ begin
     begin
 
         if rst_n_i = '0' then
-            tx_st  <= S_IDLE;
-            p      <= 0;
-            txi    <= 0;
-            tx_req <= '0';
+            tx_st    <= S_IDLE;
+            p        <= 0;
+            txi      <= 0;
+            tx_req   <= '0';
+            txb_k    <= 0;
+            txb_sync <= '0';
         elsif rising_edge(clk_i) then
 
             case tx_st is
@@ -1337,9 +1353,11 @@ begin
                 when S_WAIT =>
 
                     if tx_ack_i = '1' then
-                        tx_req <= '0';
+                        tx_req   <= '0';
+                        txb_sync <= tx_sync;
                         if txi < N_TPDO then
                             tx_st <= S_ACK;
+                            txb_k <= txi;
                         else
                             tx_st <= S_IDLE;
                         end if;
@@ -1360,6 +1378,27 @@ begin
         end if;
 
     end process tx_proc;
+
+    -- the frame on tx_req_o is a synchronous TPDO (its channel's TT is 0..240, valid)
+    tx_sync_proc : process (txi, t_sync) is
+
+        variable v : std_logic;
+
+    begin
+
+        v := '0';
+
+        for k in 0 to N_TPDO - 1 loop
+
+            if txi = k then
+                v := t_sync(k);
+            end if;
+
+        end loop;
+
+        tx_sync <= v;
+
+    end process tx_sync_proc;
 
     -- frame registers: datapath, qualified by tx_req (no reset)
     tx_frame_proc : process (clk_i) is
@@ -1603,6 +1642,10 @@ begin
                       and not (started = '1' and p = k) then
                     -- end of the synchronous window: frames not started are dropped
                     due_v := '0';
+                    lat_v := '1';
+                end if;
+                -- the channel's frame was withdrawn from the controller (a SYNC fired first)
+                if tx_cancel_late = '1' and txb_k = k then
                     lat_v := '1';
                 end if;
 
@@ -1857,6 +1900,8 @@ begin
     rx_reply_o      <= rx_reply_q;
     rx_unexpected_o <= rx_unexp_q;
     tx_req_o        <= tx_req;
+    tx_sync_o       <= tx_sync;
+    tx_cancel_late  <= tx_cancelled_i and txb_sync;
     tx_id_o         <= tx_id;
     tx_rtr_o        <= tx_rtr;
     tx_dlc_o        <= tx_dlc;

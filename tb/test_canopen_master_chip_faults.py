@@ -555,6 +555,78 @@ async def run_rx_kept_while_sync_waits(dut):
 
 
 
+#: flood id that beats the master's TPDOs (201h, 282h) and loses to its SYNC (080h)
+FLOOD_ID_PDO = 0x100
+
+
+async def flood_over_two_fires(tb: SystemTB) -> tuple[int, int, int]:
+    """A 0-byte flood of id 100h from 200 us before a SYNC fire (1 ms period) to about 1.7 ms
+    after it: the SYNCs win, the master's PDOs wait. Returns the SOF times of the first three
+    SYNC frames from the flood's start on."""
+    t_s = tb.sync_sof_times()[-1]
+    await Timer(t_s + 800 * PS_PER_US - sim_time_ps(), "ps")
+    t_f = sim_time_ps()
+    tb.raw.send(*flood(40, FLOOD_ID_PDO))
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    await wait_syncs(tb, t_f, 3)
+    s1, s2, s3 = [t for t in tb.sync_sof_times() if t > t_f][:3]
+    return s1, s2, s3
+
+
+@cocotb.test(timeout_time=100, timeout_unit="ms")
+async def run_sync_tpdo_withdrawn_when_sync_fires(dut):
+    """Purpose: a synchronous TPDO still waiting in TXB0 when the next SYNC fires would go out
+    after that SYNC, in the next cycle (slaves would apply it one cycle late): the master
+    cancels it and counts it late; an event TPDO is never withdrawn.
+
+    Verifies: TT 1 TPDO 201h, SYNC every 1 ms; a flood of 100h frames (beats 201h, loses to
+    080h) over two SYNC fires keeps the first cycle's TPDO in TXB0 at the second fire: no 201h
+    frame between the first and the second SYNC, exactly one (the second cycle's) between the
+    second and the third, PDO_CNT_LATE = 1 and the channel's LATE = 1 (without the cancel both
+    frames follow the second SYNC and nothing is counted). Then an event TPDO (TT 255, 282h)
+    triggered in the same kind of flood is in TXB0 at a fire and is sent once, after the
+    flood; LATE stays 1; SYNC frames follow their fires (no model violation).
+    """
+    tb = SystemTB(dut, node_ids=(1, 2))
+    await boot_quiet(tb)
+    host = tb.host
+    await host.tpdo_config(0, 0x201, 6, 1)
+    await host.tpdo_config(1, 0x282, 2, 255)
+    await host.sync_config(period_us=1_000)
+    await wait_syncs(tb, 0, 3)
+    assert (await host.pdo_counters())["late"] == 0
+    s1, s2, s3 = await flood_over_two_fires(tb)
+
+    def n_201(t_a: int, t_b: int) -> int:
+        return sum(1 for r in tb.frames(0x201) if t_a < r.t_start_ps < t_b)
+
+    got = (n_201(s1, s2), n_201(s2, s3))
+    dut._log.info("TPDO 201h frames after SYNC 1 / SYNC 2 of the flood: %s", got)
+    assert got == (0, 1), got
+    assert (await host.pdo_counters())["late"] == 1
+    assert (await host.tpdo_status(0))["late"] == 1
+    # an event TPDO waiting in TXB0 at a fire is not withdrawn
+    await host.tpdo_config(0, 0x201, 6, 1, valid=False)
+    await wait_syncs(tb, sim_time_ps(), 1)
+    n_282 = len(tb.frames(0x282))
+    t_s = tb.sync_sof_times()[-1]
+    await Timer(t_s + 900 * PS_PER_US - sim_time_ps(), "ps")
+    tb.raw.send(*flood(40, FLOOD_ID_PDO))
+    await Timer(20, "us")
+    await host.tpdo_write(1, b"\x5a\xa5", trigger=True)
+    await tb.wait_for(lambda: not tb.raw.queue, 10_000, 20, "flood sent")
+    await tb.wait_for(lambda: len(tb.frames(0x282)) > n_282, 5_000, 20, "event TPDO")
+    await wait_syncs(tb, sim_time_ps(), 2)
+    ev = tb.frames(0x282)[n_282:]
+    assert len(ev) == 1 and bytes(ev[0].msg.data) == b"\x5a\xa5", ev
+    fires_before = [t for t in tb.sync_sof_times() if t_s < t < ev[0].t_start_ps]
+    assert len(fires_before) >= 1, "the event TPDO was not in TXB0 at a SYNC"
+    assert (await host.pdo_counters())["late"] == 1
+    assert (await host.tpdo_status(1))["late"] == 0
+    check_clean(tb)
+    await Timer(1, "ns")
+
+
 #: documented bound from a RESET# pulse the master did not cause to its RESET instruction (error
 #: poll interval 500 us + SPI work ahead of the poll, docs/mcp2510_ctrl.md "Chip lost")
 CHIP_LOST_BOUND_US = 700

@@ -141,6 +141,7 @@ class TxRecord:
     t_ps: int  #: edge that sampled tx_ack_i
     msg: can.Message
     t_req_ps: int  #: first falling edge with the frame on tx_req_o
+    sync: int = 0  #: tx_sync_o when the frame was taken (a synchronous TPDO)
 
 
 @dataclass
@@ -257,7 +258,8 @@ class TB:
         self.strobes: dict[str, list[int]] = {n: [] for n in ("ev_rx_o", "ev_len_err_o",
                                                               "ev_missed_o", "ev_late_o")}
         for sig in (dut.sync_i, dut.sync_count_i, dut.window_open_i, dut.rx_valid_i,
-                    dut.rx_id_i, dut.rx_rtr_i, dut.rx_dlc_i, dut.rx_data_i, dut.tx_ack_i):
+                    dut.rx_id_i, dut.rx_rtr_i, dut.rx_dlc_i, dut.rx_data_i, dut.tx_ack_i,
+                    dut.tx_cancelled_i):
             sig.value = 0
         dut.tick_us_i.value = 1
         cocotb.start_soon(self._sync_producer())
@@ -313,6 +315,7 @@ class TB:
                 await FallingEdge(dut.clk_i)
             assert dut.tx_req_o.value == 1, "tx_req_o withdrawn before tx_ack_i"
             assert self._tx_frame() == frame, "frame changed while tx_req_o = 1"
+            sync = int(dut.tx_sync_o.value)
             dut.tx_ack_i.value = 1
             await RisingEdge(dut.clk_i)
             dut.tx_ack_i.value = 0
@@ -321,7 +324,7 @@ class TB:
                 msg = make_message(fid, b"", remote=True, dlc=dlc)
             else:
                 msg = make_message(fid, data.to_bytes(8, "little")[:min(dlc, 8)])
-            self.tx_log.append(TxRecord(sim_time_ps(), msg, t_req))
+            self.tx_log.append(TxRecord(sim_time_ps(), msg, t_req, sync))
             self.clock.sync()
             self.master.send(msg)
             await ReadOnly()
@@ -1166,6 +1169,75 @@ async def run_pdo_right_after_sync(dut):
     assert snap["missed"] == want and snap["seq"] == 11, snap
     cnt = await tb.counters()
     assert cnt["missed"] == want == len(tb.strobes["ev_missed_o"]), cnt
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_tpdo_cancelled_counted_late(dut):
+    """Purpose: a synchronous TPDO the core withdrew from its TX buffer because the next SYNC
+    fired before it started (tx_cancelled_i after its tx_ack_i) is counted late, like one
+    dropped at the window end; other frames are not.
+
+    Verifies: tx_sync_o is 1 with the frames of TT 0 and TT 1 channels and 0 with a TT 255
+    frame and an RPDO poll; a tx_cancelled_i strobe after a TT 1 frame gives one ev_late_o
+    strobe, PDO_CNT_LATE + 1 and LATE + 1 of that channel only; after a TT 0 frame the same
+    for its channel; after the TT 255 frame and after an RPDO poll it counts nothing.
+    """
+    tb = TB(dut)
+    await tb.start(slave_tpdos=False)
+    host = tb.host
+    await host.tpdo_config(0, 0x201, 6, 1)
+    await host.tpdo_config(1, 0x202, 6, 0)
+    await host.tpdo_config(2, 0x284, 2, 255)
+    await host.rpdo_config(0, 0x181, 6, 255, rtr_poll=True)
+    tb.sync_start()
+    await tb.wait_syncs(2)
+    tb.sync_stop()
+    await Timer(300, "us")
+    kinds = {r.msg.arbitration_id: r.sync for r in tb.tx_log}
+    assert kinds == {0x201: 1, 0x181: 0}, kinds
+
+    async def cancel_after(cob: int) -> int:
+        """Strobe tx_cancelled_i right after the next frame ``cob`` was taken (the next frame
+        is taken only once this one left the bench's CAN node, 100 us later); returns its
+        tx_sync_o."""
+        n = len(tb.tx_log)
+        await tb.wait_for(lambda: any(r.msg.arbitration_id == cob for r in tb.tx_log[n:]),
+                          2000, 1)
+        assert tb.tx_log[-1].msg.arbitration_id == cob, hex(tb.tx_log[-1].msg.arbitration_id)
+        await FallingEdge(dut.clk_i)
+        dut.tx_cancelled_i.value = 1
+        await FallingEdge(dut.clk_i)
+        dut.tx_cancelled_i.value = 0
+        await Timer(20, "us")  # the channel's sweep visit counts it
+        return tb.tx_log[-1].sync
+
+    async def lates() -> list[int]:
+        return [(await host.tpdo_status(ch))["late"] for ch in range(3)]
+
+    async def one_sync(*cobs: int) -> list[int]:
+        tasks = [cocotb.start_soon(cancel_after(c)) for c in cobs]
+        tb.sync_start()
+        await tb.wait_syncs(1)
+        tb.sync_stop()
+        return [await t for t in tasks]
+
+    base = len(tb.strobes["ev_late_o"])
+    # TT 255: taken on a trigger, not synchronous: nothing counted
+    t = cocotb.start_soon(cancel_after(0x284))
+    await host.tpdo_write(2, b"\x01\x02", trigger=True)
+    assert await t == 0
+    assert await lates() == [0, 0, 0] and len(tb.strobes["ev_late_o"]) == base
+    # TT 1 counted, the RPDO poll not
+    assert await one_sync(0x201, 0x181) == [1, 0]
+    assert await lates() == [1, 0, 0]
+    assert len(tb.strobes["ev_late_o"]) == base + 1
+    # TT 0 (marked by a commit, sent after the next SYNC)
+    await host.tpdo_write(1, b"\x11" * 6)
+    assert await one_sync(0x202) == [1]
+    await Timer(300, "us")
+    assert await lates() == [1, 1, 0]
+    cnt = await tb.counters()
+    assert cnt["late"] == 2 == len(tb.strobes["ev_late_o"]) - base, cnt
 
 
 @cocotb.test(timeout_time=50, timeout_unit="ms", expect_fail=True)
