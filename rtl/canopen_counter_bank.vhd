@@ -104,6 +104,8 @@ architecture rtl of canopen_counter_bank is
 
     type pend_arr_t is array (0 to N_CNT - 1) of unsigned(pend_bits_c - 1 downto 0);
 
+    constant inc_zero_c : std_logic_vector(INC_BITS - 1 downto 0) := (others => '0');
+
     -- sweep pointer, binary (RAM address) and one-hot (counter select)
     signal ptr : natural range 0 to slots_c - 1;
     signal hot : std_logic_vector(slots_c - 1 downto 0);
@@ -195,6 +197,8 @@ begin
             hot <= hot(slots_c - 2 downto 0) & hot(slots_c - 1);
 
             -- a visit takes the pending count; the amounts of this cycle start the next one
+            -- (an amount of 0 leaves the count as it is: the same logic as adding 0, but the
+            -- simulator skips the adder of every idle counter in every cycle)
             for k in 0 to N_CNT - 1 loop
 
                 amt_v := unsigned(inc_i(INC_BITS * k + INC_BITS - 1 downto INC_BITS * k));
@@ -202,7 +206,7 @@ begin
                     pend(k) <= (others => '0');
                 elsif hot(k) = '1' then
                     pend(k) <= resize(amt_v, pend_bits_c);
-                else
+                elsif inc_i(INC_BITS * k + INC_BITS - 1 downto INC_BITS * k) /= inc_zero_c then
                     pend(k) <= pend(k) + amt_v;
                 end if;
 
