@@ -161,9 +161,9 @@ entity canopen_host_regs is
         -- SDO client status
         sdo_busy_i       : in    std_logic;                     -- transfer running
         sdo_error_i      : in    std_logic;                     -- last transfer aborted
-        sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code
-        sdo_abort_sent_i : in    std_logic;                     -- 1: the client aborted
-        sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred
+        sdo_abort_code_i : in    std_logic_vector(31 downto 0); -- abort code (+1 cycle)
+        sdo_abort_sent_i : in    std_logic;                     -- 1: client aborted (+1)
+        sdo_size_i       : in    std_logic_vector(10 downto 0); -- bytes transferred (+1)
         sdo_refused_i    : in    std_logic;                     -- the last request was refused
         sdo_start_i      : in    std_logic_vector(3 downto 0);  -- request accepted, per channel
         sdo_chan_busy_i  : in    std_logic_vector(3 downto 0);  -- busy, per channel
@@ -406,6 +406,13 @@ architecture rtl of canopen_host_regs is
     signal rd_nst    : std_logic;
     signal rd_nlast  : std_logic;
     signal nst_nmt   : std_logic_vector(6 downto 0);
+    -- SDO result of the selected channel (canopen_sdo_channels' result RAM, registered like
+    -- the node status RAM): the address is SDO_CMD / SDO_ABORT, registered: such a read
+    signal scmd_sel  : std_logic;
+    signal sabrt_sel : std_logic;
+    signal rd_scmd   : std_logic;
+    signal rd_sabrt  : std_logic;
+    signal sdo_res   : std_logic_vector(31 downto 0);
 
     -- registered read data: multiplexer output, its register, SDO_BUF selected, valid
     signal rd_mux   : std_logic_vector(31 downto 0);
@@ -730,6 +737,13 @@ begin
                                and nst_off(1 downto 0) = REG_NODE_LAST_MS_C - REG_NODE_CFG_C else
                       '0';
 
+    -- SDO result (canopen_sdo_channels, +1 cycle after SDO_SEL like a RAM read): SDO_CMD
+    -- XFER_SIZE / ABORT_SENT and SDO_ABORT are selected in the output stage
+    scmd_sel  <= '1' when is_off(av_addr, REG_SDO_CMD_C) else
+                 '0';
+    sabrt_sel <= '1' when is_off(av_addr, REG_SDO_ABORT_C) else
+                 '0';
+
     cnt_off   <= unsigned(av_addr) - REG_CNT_RX_FRAMES_C;
     cnt_raddr <= std_logic_vector(cnt_off(3 downto 0));
     cnt_sel   <= '1' when cnt_off < cnt_num_c else
@@ -763,9 +777,9 @@ begin
                              node_alive_i, node_autostart, node_bootup_i, node_id,
                              node_life, node_lost_i, node_mode, node_rst_loss,
                              node_time, node_toggle_i, omni_en, ovf_refused, rec_i,
-                             sdo_abort_code_i, sdo_abort_sent_i, sdo_busy_i, sdo_chan,
+                             sdo_busy_i, sdo_chan,
                              sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
-                             sdo_index, sdo_refused_i, sdo_sel, sdo_size_i, sdo_start_i,
+                             sdo_index, sdo_refused_i, sdo_sel, sdo_start_i,
                              sdo_subindex, sdo_timeout, sync_count_i, sync_en, sync_overflow,
                              sync_period, sync_window, tec_i, time_us_i, tx_pending_i) is
 
@@ -846,10 +860,7 @@ begin
         put(REG_SDO_CMD_C,
             at(sdo_busy_i, SDO_CMD_BUSY_C)
             or at(sdo_done(sdo_sel) and not sdo_start_i(sdo_sel), SDO_CMD_DONE_C)
-            or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C)
-            or at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
-            or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C));
-        put(REG_SDO_ABORT_C, sdo_abort_code_i);
+            or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C));
         put(REG_SDO_TIMEOUT_MS_C,
             at(sdo_timeout, SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C));
         put(REG_SDO_COB_C,
@@ -909,6 +920,8 @@ begin
             rd_cnt   <= '0';
             rd_nst   <= '0';
             rd_nlast <= '0';
+            rd_scmd  <= '0';
+            rd_sabrt <= '0';
         elsif rising_edge(clk_i) then
             rd_valid <= av_rd;
             if av_rd = '1' then
@@ -917,6 +930,8 @@ begin
                 rd_cnt   <= cnt_sel;
                 rd_nst   <= nst_sel;
                 rd_nlast <= nlast_sel;
+                rd_scmd  <= scmd_sel;
+                rd_sabrt <= sabrt_sel;
             end if;
         end if;
 
@@ -927,8 +942,12 @@ begin
                            std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
                            node_st_last_i when rd_nlast = '1' else
                            rd_data or at(nst_nmt, NODE_STATUS_NMT_STATE_HI_C,
-                                            NODE_STATUS_NMT_STATE_LO_C);
+                                            NODE_STATUS_NMT_STATE_LO_C) or sdo_res;
     nst_nmt             <= node_st_nmt_i when rd_nst = '1' else
+                           (others => '0');
+    sdo_res             <= at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
+                           or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C) when rd_scmd = '1' else
+                           sdo_abort_code_i when rd_sabrt = '1' else
                            (others => '0');
     avs_readdatavalid_o <= rd_valid;
 

@@ -79,12 +79,13 @@ entity canopen_sdo_channels is
         buf_we_i    : in    std_logic;                     -- write (idle channel only)
         buf_wdata_i : in    std_logic_vector(31 downto 0); -- write data
         buf_rdata_o : out   std_logic_vector(31 downto 0); -- read data (+1 cycle)
-        -- status of the selected channel
+        -- status of the selected channel (abort code, abort sent, size: of the host_chan_i of
+        -- the previous cycle, from the result RAM, like buf_rdata_o)
         busy_o       : out   std_logic;                     -- transfer running (or owned)
         error_o      : out   std_logic;                     -- last transfer aborted
-        abort_code_o : out   std_logic_vector(31 downto 0); -- its abort code
-        abort_sent_o : out   std_logic;                     -- 1: the master aborted
-        size_o       : out   std_logic_vector(10 downto 0); -- bytes transferred
+        abort_code_o : out   std_logic_vector(31 downto 0); -- its abort code (+1 cycle)
+        abort_sent_o : out   std_logic;                     -- 1: the master aborted (+1)
+        size_o       : out   std_logic_vector(10 downto 0); -- bytes transferred (+1)
         refused_o    : out   std_logic;                     -- the last request was refused
         -- all channels (bit c = channel c, bits >= N_SDO read 0)
         chan_busy_o : out   std_logic_vector(3 downto 0); -- transfer running (or owned)
@@ -146,6 +147,8 @@ architecture rtl of canopen_sdo_channels is
     constant ctx_w_c : positive := 93 + emp_w_c + 4 * cnt_w_c;
     -- frame word: the data bytes (the identifier is the channel's run_req)
     constant frm_w_c : positive := 64;
+    -- result word: abort code, abort sent, size
+    constant res_w_c : positive := 44;
     -- depth of the context and frame RAMs: at least 8 words, so that the synthesis maps them
     -- to block RAM (yosys' minimum efficiency for an M9K), not to flip-flops
     constant small_d_c : positive := max_nat(N_SDO, 8);
@@ -375,10 +378,6 @@ architecture rtl of canopen_sdo_channels is
 
     type cob_arr_t is array (0 to N_SDO - 1) of std_logic_vector(10 downto 0);
 
-    type w32_arr_t is array (0 to N_SDO - 1) of std_logic_vector(31 downto 0);
-
-    type w11_arr_t is array (0 to N_SDO - 1) of std_logic_vector(10 downto 0);
-
     type lane_addr_array_t is array (0 to 3) of natural range 0 to depth_c - 1;
 
     type lane_data_array_t is array (0 to 3) of std_logic_vector(7 downto 0);
@@ -436,13 +435,26 @@ architecture rtl of canopen_sdo_channels is
     signal txw : chan_vec_t;
     -- a ms tick has not yet been applied to the channel's timer
     signal todo : chan_vec_t;
-    -- result of the last transfer (host status)
-    signal res_err  : chan_vec_t;
-    signal res_code : w32_arr_t;
-    signal res_sent : chan_vec_t;
-    signal res_size : w11_arr_t;
+    -- result of the last transfer (host status): the error flag here, the abort code, the
+    -- abort-sent flag and the size in the result RAM (written at the end of a transfer);
+    -- res_ok: the channel's RAM word holds the result of its last transfer (0 from a start
+    -- until its end: the result reads as 0); res_oom: the last start was refused for its size
+    -- (0504 0005h, sent by the client, size 0, without a RAM write)
+    signal res_err : chan_vec_t;
+    signal res_ok  : chan_vec_t;
+    signal res_oom : chan_vec_t;
     -- strobe: the channel's transfer ended (result above valid)
     signal c_done : chan_vec_t;
+    -- result RAM (one word per channel: abort code 43:12, abort sent 11, size 10:0), written
+    -- at the end of a transfer, read at host_chan_i; ok / out-of-memory flags of the channel
+    -- read in the same cycle (the outputs are registered: +1 cycle after host_chan_i)
+    signal res_we    : std_logic;
+    signal res_wdata : std_logic_vector(res_w_c - 1 downto 0);
+    signal res_q     : std_logic_vector(res_w_c - 1 downto 0);
+    signal res_ok_q  : std_logic;
+    signal res_oom_q : std_logic;
+    -- channel 0's abort code for the owner (canopen_autoconfig reads it with own_done_o)
+    signal own_code : std_logic_vector(31 downto 0);
     -- sticky refused flag per channel
     signal refused : chan_vec_t;
     -- the transfer ended or is aborted: its request must be withdrawn from TXB1 first (the
@@ -764,6 +776,38 @@ begin
             rdata_o => frm_rdata
         );
 
+    -- result RAM: written with the write-back that ends a transfer (done_q), read for the host
+    res_we    <= wb_go and done_q;
+    res_wdata <= ctx.abort_code & abort_sent_q & std_logic_vector(resize(size_q, 11));
+
+    res_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => small_d_c,
+            WIDTH => res_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => res_we,
+            waddr_i => ev_ch,
+            wdata_i => res_wdata,
+            re_i    => '1',
+            raddr_i => sel,
+            rdata_o => res_q
+        );
+
+    res_flags_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            res_ok_q  <= '0';
+            res_oom_q <= '0';
+        elsif rising_edge(clk_i) then
+            res_ok_q  <= res_ok(sel);
+            res_oom_q <= res_oom(sel);
+        end if;
+
+    end process res_flags_proc;
+
     wdr_keep <= '1' when wdr(ev_ch) = '1'
                          and not (wdr_cur = '1' and wdr_ack_i = '1' and wdr_ch = ev_ch) else
                 '0';
@@ -1029,9 +1073,9 @@ begin
             txw       <= (others => '0');
             todo      <= (others => '0');
             res_err   <= (others => '0');
-            res_code  <= (others => (others => '0'));
-            res_sent  <= (others => '0');
-            res_size  <= (others => (others => '0'));
+            res_ok    <= (others => '0');
+            res_oom   <= (others => '0');
+            own_code  <= (others => '0');
             c_done    <= (others => '0');
             refused   <= (others => '0');
             own_pend  <= '0';
@@ -1098,17 +1142,21 @@ begin
 
             -- a start (host or owner): the context word is written by the RAM port above
             if st_go = '1' then
-                res_err(st_ch)  <= '0';
-                res_code(st_ch) <= (others => '0');
-                res_sent(st_ch) <= '0';
-                res_size(st_ch) <= (others => '0');
+                res_err(st_ch) <= '0';
+                res_ok(st_ch)  <= '0';
+                res_oom(st_ch) <= '0';
+                if st_ch = 0 then
+                    own_code <= (others => '0');
+                end if;
 
                 if st_big = '1' then
                     -- a download larger than the buffer: refused by the client without a frame
-                    c_done(st_ch)   <= '1';
-                    res_err(st_ch)  <= '1';
-                    res_code(st_ch) <= SDO_ABORT_OUT_OF_MEM_C;
-                    res_sent(st_ch) <= '1';
+                    c_done(st_ch)  <= '1';
+                    res_err(st_ch) <= '1';
+                    res_oom(st_ch) <= '1';
+                    if st_ch = 0 then
+                        own_code <= SDO_ABORT_OUT_OF_MEM_C;
+                    end if;
                 else
                     ch_state(st_ch) <= S_START;
                     todo(st_ch)     <= '0';
@@ -1203,11 +1251,12 @@ begin
                     else
                         c_done(ev_ch) <= '1';
                     end if;
-                    todo(ev_ch)     <= '0';
-                    res_err(ev_ch)  <= error_q;
-                    res_code(ev_ch) <= ctx.abort_code;
-                    res_sent(ev_ch) <= abort_sent_q;
-                    res_size(ev_ch) <= std_logic_vector(resize(size_q, 11));
+                    todo(ev_ch)    <= '0';
+                    res_err(ev_ch) <= error_q;
+                    res_ok(ev_ch)  <= '1';
+                    if ev_ch = 0 then
+                        own_code <= ctx.abort_code;
+                    end if;
                 end if;
             end if;
 
@@ -1932,9 +1981,12 @@ begin
     busy_o       <= c_busy(sel) or own_i or own_pend when sel = 0 else
                     c_busy(sel);
     error_o      <= res_err(sel);
-    abort_code_o <= res_code(sel);
-    abort_sent_o <= res_sent(sel);
-    size_o       <= res_size(sel);
+    abort_code_o <= SDO_ABORT_OUT_OF_MEM_C when res_oom_q = '1' else
+                    res_q(43 downto 12) when res_ok_q = '1' else
+                    (others => '0');
+    abort_sent_o <= res_oom_q or (res_ok_q and res_q(11));
+    size_o       <= res_q(10 downto 0) when res_ok_q = '1' else
+                    (others => '0');
     -- in the cycle a request is decided its outcome is shown, not the previous one (a read right
     -- after the SDO_CMD write sees the outcome of that write)
     refused_o   <= not host_go when host_req_i = '1' and sel_ok = '1' else
@@ -1945,6 +1997,6 @@ begin
     own_idle_o  <= not c_busy(0) and not own_pend;
     own_done_o  <= c_done(0) and own_i;
     own_error_o <= res_err(0);
-    own_abort_o <= res_code(0);
+    own_abort_o <= own_code;
 
 end architecture rtl;

@@ -70,6 +70,7 @@ VARIANTS: dict[str, tuple[str, dict[str, str]]] = {
     "canopen_master_top_canopen_only_sdo4": (
         "canopen_master_top", {"OMNI_ENABLE": "false", "N_SDO": "4"}),
     "canopen_pdo_engine_pdo12": ("canopen_pdo_engine", {"N_TPDO": "12", "N_RPDO": "12"}),
+    "canopen_sdo_channels_sdo4": ("canopen_sdo_channels", {"N_SDO": "4"}),
 }
 #: slope name -> (base build, build with more channels, extra channels of either kind)
 SLOPES = {

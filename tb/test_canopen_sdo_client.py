@@ -23,7 +23,8 @@ Checkers, all independent of the RTL:
 * every received frame must be answered by ``rx_done_o`` within ``RX_LATENCY_MAX`` cycles (the
   engine's documented bound), ``rx_reply_o`` must come with ``tx_req_o``, and a frame flagged
   ``rx_unexpected_o`` must not change ``state_o`` (the selected channel's state);
-* the abort code, ``abort_sent_o`` and ``size_o`` at ``done_o``; abort frames are also looked
+* ``error_o`` at ``done_o``, the abort code, ``abort_sent_o`` and ``size_o`` one cycle later
+  (registered outputs of the result RAM); abort frames are also looked
   for on the bus, and the server's record of the abort it received is checked.
 """
 
@@ -395,7 +396,10 @@ class TB:
             await FallingEdge(dut.clk_i)
             dut.host_chan_i.value = c
             await ReadOnly()
-            out.append((int(dut.error_o.value), int(dut.abort_code_o.value),
+            error = int(dut.error_o.value)
+            await RisingEdge(dut.clk_i)  # the result RAM's outputs: +1 cycle after host_chan_i
+            await ReadOnly()
+            out.append((error, int(dut.abort_code_o.value),
                         int(dut.abort_sent_o.value), int(dut.size_o.value)))
         await FallingEdge(dut.clk_i)
         dut.host_chan_i.value = 0
@@ -438,13 +442,17 @@ class TB:
             self._done_event.clear()
             await First(self._done_event.wait(), Timer(t_end - sim_time_ps(), "ps"))
         await ReadOnly()
+        t_done = sim_time_ps()
+        error, busy = int(dut.error_o.value), int(dut.busy_o.value)
+        await RisingEdge(dut.clk_i)  # abort code, abort sent, size: one cycle after done_o
+        await ReadOnly()
         log = self.tx_log[n_tx0:]
-        return Result(error=int(dut.error_o.value), code=int(dut.abort_code_o.value),
+        return Result(error=error, code=int(dut.abort_code_o.value),
                       sent=int(dut.abort_sent_o.value), size=int(dut.size_o.value),
-                      busy_at_done=int(dut.busy_o.value),
+                      busy_at_done=busy,
                       frames=[bytes(m.data) for _, m in log],
                       ids=[m.arbitration_id for _, m in log], t_req_ps=t_req,
-                      t_done_ps=sim_time_ps(), tx_times=[t for t, _ in log], n_bus0=n_bus0)
+                      t_done_ps=t_done, tx_times=[t for t, _ in log], n_bus0=n_bus0)
 
     async def transfer(self, *, limit_ms: float = 100, **req) -> Result:
         dut = self.dut

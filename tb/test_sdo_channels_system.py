@@ -18,7 +18,7 @@ import struct
 import can
 import cocotb
 import pytest
-from cocotb.triggers import Combine, Timer
+from cocotb.triggers import Combine, ReadOnly, RisingEdge, Timer
 
 from sim_models.can_bus import QueueNode
 from sim_models.canopen_slave import NmtState, make_message
@@ -55,6 +55,40 @@ async def boot(tb: SystemTB) -> int:
     assert n == param("N_SDO", 2), n
     tb.host.max_polls = 100_000
     return n
+
+
+async def select_then_read(tb: SystemTB, chan: int, reg: str) -> int:
+    """Write SDO_SEL.CHAN = ``chan`` and read ``reg`` in the very next cycle, pins driven here:
+    the driver leaves an idle cycle between two accesses, this sequence does not. The read
+    must see the new channel (the result RAM is read at the new SDO_SEL in time)."""
+    dut, host = tb.dut, tb.host
+    async with host._sdo_lock:
+        await host.bus._acquire_lock()
+        try:
+            await RisingEdge(dut.clk_i)
+            dut.avs_address_i.value = R.addr("SDO_SEL")
+            dut.avs_writedata_i.value = R.make("SDO_SEL", CHAN=chan)
+            dut.avs_byteenable_i.value = 0xF
+            dut.avs_write_i.value = 1
+            await RisingEdge(dut.clk_i)  # the write is taken
+            dut.avs_write_i.value = 0
+            dut.avs_address_i.value = R.addr(reg)
+            dut.avs_read_i.value = 1
+            await RisingEdge(dut.clk_i)  # the read is taken, the cycle after the write
+            dut.avs_read_i.value = 0
+            for _ in range(4):
+                await RisingEdge(dut.clk_i)
+                await ReadOnly()
+                if dut.avs_readdatavalid_o.value == 1:
+                    value = int(dut.avs_readdata_o.value)
+                    break
+            else:
+                raise AssertionError("no readdatavalid within 4 cycles")
+            await RisingEdge(dut.clk_i)
+        finally:
+            host.bus._release_lock()
+            host._sdo_chan = None  # the driver's cached SDO_SEL is no longer known
+    return value
 
 
 @cocotb.test(timeout_time=400, timeout_unit="ms")
@@ -192,7 +226,10 @@ async def run_sdo_simultaneous_aborts_counted(dut):
     Verifies: every channel uploads from an absent node at once (nodes 9..), with the requests
     written back to back so the timeouts expire together: each channel reports 0504 0000h sent
     by the master, the master sends exactly one abort frame per channel (they share TXB1 and
-    leave one after another), and CNT_SDO_ABORT rises by the number of channels.
+    leave one after another), and CNT_SDO_ABORT rises by the number of channels. Then channel 0
+    ends with a success (4 bytes): an SDO_SEL write followed in the very next cycle by a read
+    of SDO_ABORT or SDO_CMD shows the newly selected channel's code, size and abort-sent flag
+    (the result RAM of canopen_sdo_channels is read at the new SDO_SEL in time).
     """
     tb = SystemTB(dut)
     n = await boot(tb)
@@ -223,6 +260,18 @@ async def run_sdo_simultaneous_aborts_counted(dut):
         aborts = [r for r in tb.frames(0x600 + node) if r.msg.data[0] == 0x80]
         assert len(aborts) == 1, node
     assert (await host.counters())["sdo_abort"] == n
+    # channel 0 then ends with a success (4 bytes, code 0), the others keep their abort: a
+    # read in the cycle right after an SDO_SEL write shows the newly selected channel's result
+    await host.write("SDO_TIMEOUT_MS", R.make("SDO_TIMEOUT_MS", VALUE=20))
+    assert len(await host.sdo_upload(1, 0x1000, 0, chan=0)) == 4
+    order = [c for _ in range(2) for c in range(n)] + [0, n - 1, 0]
+    for c in order:
+        code = await select_then_read(tb, c, "SDO_ABORT")
+        cmd = await select_then_read(tb, c, "SDO_CMD")
+        want = (0, 4, 0) if c == 0 else (ABORT_TIMEOUT, 0, 1)
+        got = (code, R.get_field("SDO_CMD", "XFER_SIZE", cmd),
+               R.get_field("SDO_CMD", "ABORT_SENT", cmd))
+        assert got == want, f"channel {c}: (SDO_ABORT, XFER_SIZE, ABORT_SENT) {got}, not {want}"
     tb.check_models_clean()
     await Timer(1, "ns")
 
