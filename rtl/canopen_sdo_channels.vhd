@@ -795,19 +795,6 @@ begin
             rdata_o => res_q
         );
 
-    res_flags_proc : process (clk_i, rst_n_i) is
-    begin
-
-        if rst_n_i = '0' then
-            res_ok_q  <= '0';
-            res_oom_q <= '0';
-        elsif rising_edge(clk_i) then
-            res_ok_q  <= res_ok(sel);
-            res_oom_q <= res_oom(sel);
-        end if;
-
-    end process res_flags_proc;
-
     wdr_keep <= '1' when wdr(ev_ch) = '1'
                          and not (wdr_cur = '1' and wdr_ack_i = '1' and wdr_ch = ev_ch) else
                 '0';
@@ -1075,6 +1062,8 @@ begin
             res_err   <= (others => '0');
             res_ok    <= (others => '0');
             res_oom   <= (others => '0');
+            res_ok_q  <= '0';
+            res_oom_q <= '0';
             own_code  <= (others => '0');
             c_done    <= (others => '0');
             refused   <= (others => '0');
@@ -1089,6 +1078,9 @@ begin
             wdr_ch    <= 0;
         elsif rising_edge(clk_i) then
             c_done <= (others => '0');
+            -- the result flags of the selected channel, in step with the result RAM's read
+            res_ok_q  <= res_ok(sel);
+            res_oom_q <= res_oom(sel);
 
             -- withdraw: one at a time (lowest channel first); acknowledged, the channel's abort
             -- frame may be presented and an ended transfer reports DONE
