@@ -41,6 +41,7 @@ from tb.tblib.fuzz import (
     babble_frame,
     check_error_state,
     check_fsm_dwell,
+    check_heartbeat_loss,
     check_injected_errors,
     check_master_tx_errors,
     check_nothing_sent,
@@ -472,10 +473,12 @@ class Fuzz:
         self.rep.add("tx_errors", check_master_tx_errors(c["tx_error"], frames,
                                                          self.tb.chip.name, t0, t1))
         self.rep.frames_injected += self.raw.n_sent - sent0
-        # the slaves kept sending their heartbeats (10 ms) and the longest burst is < 10 ms:
-        # no consumer (30 ms) may expire
-        if c["hb_loss"]:
-            self.rep.add("heartbeat", [f"[{t0}, {t1}) ps: {c['hb_loss']} heartbeat losses"])
+        # CNT_HB_LOSS = the consumer (30 ms) expiries the bus explains: the slaves send every
+        # 10 ms, but flood phases one after another can starve 70xh heartbeats for longer
+        hb_frames = [BusFrame.of(r) for r in self.tb.bus.records if r.t_end_ps < t1]
+        self.rep.add("heartbeat", check_heartbeat_loss(
+            c["hb_loss"], hb_frames, self.tb.chip.name, NODES, 3 * HB_MS * PS_PER_MS,
+            2 * PS_PER_MS, t0, t1))
         self.rep.add("rx_overflow", [
             f"{t} ps: MCP2510 RXB{n} overflow, lost 0x{m.arbitration_id:03X} DLC {m.dlc} (FSM "
             f"St{self.fsm_at(t)})" for t, n, m in self.tb.chip.overflows if t0 <= t < t1])
@@ -771,6 +774,13 @@ def test_fuzz_checkers_can_fail():
     lost[[f.t_start for f in lost].index(3 * p)] = _frame(3 * p + 61 * bit, 0x080)
     lost.sort(key=lambda f: f.t_start)
     assert any("lost to 0x700" in e for e in check_sync(fires, lost, "chip", p, win, bit)[0])
+    # a frame whose start of frame is the firing instant itself was on the wire (the chip
+    # cannot join that arbitration); one bit later it is a lost arbitration
+    tie = sorted(frames[:3] + [_frame(3 * p, 0x700, 60, "raw"), _frame(3 * p + 60 * bit, 0x080)]
+                 + frames[4:], key=lambda f: f.t_start)
+    assert check_sync(fires, tie, "chip", p, win, bit)[0] == []
+    tie_late = [_frame(3 * p + bit, 0x700, 60, "raw") if f.can_id == 0x700 else f for f in tie]
+    assert any("lost to 0x700" in e for e in check_sync(fires, tie_late, "chip", p, win, bit)[0])
     # a lower-priority frame right after the master's destroyed SYNC (suspend) is explained
     susp = sorted(frames[:3] + [_frame(3 * p, 0x080, 20, kind="error"),
                                 _frame(3 * p + 20 * bit, 0x700, 60, "raw"),
@@ -845,6 +855,22 @@ def test_fuzz_checkers_can_fail():
     assert check_injected_errors(2, errf, 0, 100 * us) == []
     assert check_injected_errors(1, errf, 0, 100 * us)
     assert check_master_tx_errors(1, errf, "chip", 0, 100 * us) == []
+    # CNT_HB_LOSS: heartbeats of node 1 every 10 ms, then a 45 ms gap (a sure loss), consumer
+    # 30 ms, slack 2 ms
+    ms = PS_PER_MS
+    hb_t = [0, 10, 20, 30, 75, 85]
+    hbs = [_frame(t * ms, 0x701, 50, "slave1", dlc=1) for t in hb_t]
+    assert check_heartbeat_loss(1, hbs, "chip", (1,), 30 * ms, 2 * ms, 5 * ms, 100 * ms) == []
+    assert check_heartbeat_loss(0, hbs, "chip", (1,), 30 * ms, 2 * ms, 5 * ms, 100 * ms)
+    assert check_heartbeat_loss(2, hbs, "chip", (1,), 30 * ms, 2 * ms, 5 * ms, 100 * ms)
+    steady = [_frame(t * ms, 0x701, 50, "slave1", dlc=1) for t in range(0, 100, 10)]
+    assert check_heartbeat_loss(0, steady, "chip", (1,), 30 * ms, 2 * ms, 5 * ms, 100 * ms) == []
+    assert check_heartbeat_loss(1, steady, "chip", (1,), 30 * ms, 2 * ms, 5 * ms, 100 * ms)
+    # a heartbeat the master's controller did not receive (destroyed, or not addressed to it)
+    # does not restart the consumer
+    missed = [_frame(40 * ms, 0x701, 50, "slave1", dlc=1, receivers=("slave2",))]
+    assert check_heartbeat_loss(1, sorted(hbs + missed, key=lambda f: f.t_start), "chip", (1,),
+                                30 * ms, 2 * ms, 5 * ms, 100 * ms) == []
     assert check_master_tx_errors(0, errf, "chip", 0, 100 * us)
     # refused commands send nothing
     nmt = [_frame(10 * us, 0x000, dlc=2)]

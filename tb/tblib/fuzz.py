@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import random
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -232,8 +232,11 @@ def check_sync(fires: Sequence[int], frames: Sequence[BusFrame], master: str, pe
             sof = mine[0]
             delay = sof - tf
             fig["max_delay_ps"] = max(fig["max_delay_ps"], delay)
-            j = bisect_left(starts, tf)
-            # the frame on the wire when it fired
+            # the frame on the wire when it fired: one that started before the firing, or at
+            # its very instant (the chip cannot join an arbitration whose start of frame
+            # coincides with the TX2RTS edge; the bit-exact bus makes such ties common, since
+            # the bit grid and the SYNC period are both whole microseconds)
+            j = bisect_right(starts, tf)
             explained = 0
             if j > 0 and frames[j - 1].t_end > tf:
                 explained += min(frames[j - 1].t_end, sof) - tf
@@ -493,6 +496,39 @@ def check_master_tx_errors(cnt_tx_error: int, frames: Sequence[BusFrame], master
             and t0 <= f.t_start < t1)
     return [] if n == cnt_tx_error else [f"[{t0}, {t1}) ps: CNT_TX_ERROR {cnt_tx_error}, "
                                          f"{n} of the master's frames destroyed"]
+
+
+def check_heartbeat_loss(hb_loss: int, frames: Sequence[BusFrame], master: str,
+                         nodes: Sequence[int], consumer_ps: int, slack_ps: int, t0: int,
+                         t1: int) -> list[str]:
+    """CNT_HB_LOSS of the epoch ``[t0, t1)`` equals the consumer expiries the bus explains.
+
+    From the heartbeats (700h + node, data frames) the master's controller received
+    (``frames``: every bus frame up to ``t1``): a gap longer than ``consumer_ps`` + ``slack_ps``
+    whose expiry (the earlier heartbeat + ``consumer_ps``) falls in the epoch is a loss that
+    must be counted, a gap within ``slack_ps`` of ``consumer_ps`` (ms-tick granularity, the
+    receive path) or an expiry of a heartbeat from before the epoch (a disruption may have
+    restarted the consumer) may be counted. An injector that keeps the bus full with
+    lower identifiers long enough starves 70xh heartbeats: that loss is legitimate."""
+    sure = maybe = 0
+    for n in nodes:
+        rx = [f.t_end for f in frames if f.kind == "frame" and not f.ext and not f.rtr
+              and f.can_id == 0x700 + n and master in f.receivers and f.t_end < t1]
+        rx.sort()
+        for k, t in enumerate(rx):
+            if not t0 <= t + consumer_ps < t1:
+                continue  # the consumer of this heartbeat expires outside the epoch
+            gap = (rx[k + 1] if k + 1 < len(rx) else t1) - t
+            if t < t0 and gap > consumer_ps - slack_ps:
+                maybe += 1
+            elif gap > consumer_ps + slack_ps:
+                sure += 1
+            elif gap > consumer_ps - slack_ps:
+                maybe += 1
+    if sure <= hb_loss <= sure + maybe:
+        return []
+    return [f"[{t0}, {t1}) ps: CNT_HB_LOSS {hb_loss}, the bus explains {sure} (up to "
+            f"{sure + maybe})"]
 
 
 def check_nothing_sent(frames: Sequence[BusFrame], master: str,
