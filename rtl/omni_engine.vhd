@@ -101,6 +101,37 @@ architecture rtl of omni_engine is
     constant ns_per_bit_c : natural                       := ns_per_s_c / BITRATE_BPS;
     constant fram_w_c     : positive                      := 64 + 16 + 16;  -- data, seq, cycle
 
+    -- greatest common divisor (elaboration only)
+
+    function gcd (a : positive; b : positive) return positive is
+
+        variable x : natural;
+        variable y : natural;
+        variable t : natural;
+
+    begin
+
+        x := a;
+        y := b;
+
+        while y /= 0 loop
+
+            t := x mod y;
+            x := y;
+            y := t;
+
+        end loop;
+
+        return x;
+
+    end function gcd;
+
+    -- feasibility: bits * ns_per_bit <= period_us * 1000, both sides divided by their gcd (the
+    -- same inequality with small constants: 1 and 1 at 1 Mbit/s, 2 and 1 at 500 kbit/s)
+    constant feas_g_c : positive := gcd(ns_per_bit_c, ns_per_us_c);
+    constant feas_a_c : positive := ns_per_bit_c / feas_g_c;
+    constant feas_b_c : positive := ns_per_us_c / feas_g_c;
+
     -- no slot flagged
     constant zero_slots_c : std_logic_vector(N_SLOTS - 1 downto 0) := (others => '0');
 
@@ -1418,7 +1449,7 @@ begin
 
     -- ---------------------------------------------------------------------------------------------
     -- Feasibility: bits of one worst-case cycle, summed one term per clock; then
-    -- bits * ns_per_bit <= period_us * 1000 (no divider)
+    -- bits * ns_per_bit <= period_us * 1000 (no divider; both constants divided by their gcd)
     -- ---------------------------------------------------------------------------------------------
     feas_proc : process (clk_i, rst_n_i) is
 
@@ -1476,8 +1507,8 @@ begin
                 f_acc <= f_acc + f_term;
             end if;
 
-            f_prod_a <= resize(f_bits * to_unsigned(ns_per_bit_c, 32), 48);
-            f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(ns_per_us_c, 10), 48);
+            f_prod_a <= resize(f_bits * to_unsigned(feas_a_c, 32), 48);
+            f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(feas_b_c, 16), 48);
 
             -- compare in two stages: four 12-bit chunks (less than / equal) registered, then
             -- combined from the top chunk down
