@@ -558,7 +558,7 @@ package canopen_regs_pkg is
     constant OMNI_CTRL_CLR_COUNTERS_C : natural := 2; -- pulse
 
     -- OMNI_STATUS
-    constant OMNI_STATUS_PENDING_C    : natural := 0; -- RO: a commit waits for the next cyc_take_i
+    constant OMNI_STATUS_PENDING_C    : natural := 0; -- RO
     constant OMNI_STATUS_INFEASIBLE_C : natural := 1; -- RO
     constant OMNI_STATUS_CFG_ERR_C    : natural := 2; -- RO
     constant OMNI_STATUS_NMT_BUSY_C   : natural := 3; -- RO

@@ -13,6 +13,7 @@ canopen_fifo.vhd
 canopen_sdo_channels.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
+omni_feasibility.vhd
 omni_engine.vhd
 canopen_node_monitor.vhd
 mcp2510_spi_master.vhd

@@ -12,9 +12,13 @@
 -- Purpose:
 --   * Cycle frame: the broadcast of N_AXES set-points (fc 001, 1 byte per axis, optional
 --     sender byte; or fc 100, 2 bytes per axis), highest axis first. Set-points are double
---     buffered: COMMIT copies the staging registers into a pending set that becomes the active
---     set at the next cyc_take_i (the preload of the cycle frame), so a frame never mixes two
---     commits. SYNC_MODE 1: the cycle frame of every K-th cycle is the Omni SYNC (080h, DLC 0)
+--     buffered: COMMIT copies the staging registers into the committed set; a builder makes
+--     its broadcast frame one byte per cycle (one shared multiplexer instead of one per frame
+--     bit) and swaps it in whole 10 cycles after the COMMIT or OMNI_CFG write, so a frame
+--     never mixes two commits or two configurations. The commit is applied (PENDING falls)
+--     at the first cyc_take_i (the preload of the cycle frame) at least 10 cycles after it;
+--     a take before sends the previous frame. SYNC_MODE 1: the cycle frame of every K-th
+--     cycle is the Omni SYNC (080h, DLC 0)
 --     and that cycle's broadcast follows through tx_req_o right after the cycle instant.
 --   * Frame queue (tx_req_o / tx_ack_i, one frame at a time, fixed priority): NMT stop all
 --     after a missing node, host NMT, broadcast after a SYNC, node query, query reply,
@@ -88,49 +92,15 @@ architecture rtl of omni_engine is
     -- ---------------------------------------------------------------------------------------------
     -- Protocol constants (digest 2.1-2.4; A3, A6, A12)
     -- ---------------------------------------------------------------------------------------------
-    constant fc_nmt_c     : std_logic_vector(2 downto 0)  := "000";         -- NMT, query, replies
-    constant fc_bc8_c     : std_logic_vector(2 downto 0)  := "001";         -- broadcast 8 x 1 byte
-    constant fc_bc4_c     : std_logic_vector(2 downto 0)  := "100";         -- broadcast 4 x 2 bytes
-    constant fc_param_c   : std_logic_vector(2 downto 0)  := "111";         -- parameter setup
-    constant sync_id_c    : std_logic_vector(10 downto 0) := "000" & x"80"; -- Omni SYNC (A6)
-    constant nmt_dlc_c    : std_logic_vector(3 downto 0)  := x"2";          -- [node][state]
-    constant param_min_c  : natural                       := 2;             -- [sender][type]
-    constant max_axes_c   : natural                       := 8;             -- staging registers
-    constant ns_per_s_c   : natural                       := 1_000_000_000;
-    constant ns_per_us_c  : natural                       := 1000;
-    constant ns_per_bit_c : natural                       := ns_per_s_c / BITRATE_BPS;
-    constant fram_w_c     : positive                      := 64 + 16 + 16;  -- data, seq, cycle
-
-    -- greatest common divisor (elaboration only)
-
-    function gcd (a : positive; b : positive) return positive is
-
-        variable x : natural;
-        variable y : natural;
-        variable t : natural;
-
-    begin
-
-        x := a;
-        y := b;
-
-        while y /= 0 loop
-
-            t := x mod y;
-            x := y;
-            y := t;
-
-        end loop;
-
-        return x;
-
-    end function gcd;
-
-    -- feasibility: bits * ns_per_bit <= period_us * 1000, both sides divided by their gcd (the
-    -- same inequality with small constants: 1 and 1 at 1 Mbit/s, 2 and 1 at 500 kbit/s)
-    constant feas_g_c : positive := gcd(ns_per_bit_c, ns_per_us_c);
-    constant feas_a_c : positive := ns_per_bit_c / feas_g_c;
-    constant feas_b_c : positive := ns_per_us_c / feas_g_c;
+    constant fc_nmt_c    : std_logic_vector(2 downto 0)  := "000";         -- NMT, query, replies
+    constant fc_bc8_c    : std_logic_vector(2 downto 0)  := "001";         -- broadcast 8 x 1 byte
+    constant fc_bc4_c    : std_logic_vector(2 downto 0)  := "100";         -- broadcast 4 x 2 bytes
+    constant fc_param_c  : std_logic_vector(2 downto 0)  := "111";         -- parameter setup
+    constant sync_id_c   : std_logic_vector(10 downto 0) := "000" & x"80"; -- Omni SYNC (A6)
+    constant nmt_dlc_c   : std_logic_vector(3 downto 0)  := x"2";          -- [node][state]
+    constant param_min_c : natural                       := 2;             -- [sender][type]
+    constant max_axes_c  : natural                       := 8;             -- staging registers
+    constant fram_w_c    : positive                      := 64 + 16 + 16;  -- data, seq, cycle
 
     -- no slot flagged
     constant zero_slots_c : std_logic_vector(N_SLOTS - 1 downto 0) := (others => '0');
@@ -177,29 +147,6 @@ architecture rtl of omni_engine is
     -- bits of a counter's amount per cycle (OMNI_CNT_MISSED / NODE_MISSING: up to N_SLOTS = 8)
     constant inc_w_c : natural := 4;
 
-    type nat_arr_t is array (natural range <>) of natural;
-
-    -- worst-case bits of a standard data frame with n data bytes, intermission included:
-    -- 44 + 8n + floor((34 + 8n - 1) / 4) + 3
-
-    function wc_table return nat_arr_t is
-
-        variable t : nat_arr_t(0 to 8);
-
-    begin
-
-        for n in 0 to 8 loop
-
-            t(n) := 44 + 8 * n + (34 + 8 * n - 1) / 4 + 3;
-
-        end loop;
-
-        return t;
-
-    end function wc_table;
-
-    constant wc_bits_c : nat_arr_t(0 to 8) := wc_table;
-
     function check_config return boolean is
     begin
 
@@ -212,14 +159,9 @@ architecture rtl of omni_engine is
         assert REG_OMNI_CNT_PARAM_RX_C - REG_OMNI_CNT_FB_RX_C = cnt_num_c - 1
             report "omni_engine: OMNI_CNT_FB_RX .. OMNI_CNT_PARAM_RX are not consecutive"
             severity failure;
-        assert ns_per_s_c mod BITRATE_BPS = 0
-            report "omni_engine: BITRATE_BPS must divide 10**9 (whole ns per bit)"
-            severity failure;
         assert false
             report "omni_engine: " & integer'image(N_SLOTS) & " slots, master id "
-                   & integer'image(MASTER_ID_DEFAULT) & ", " & integer'image(ns_per_bit_c)
-                   & " ns per bit, frames " & integer'image(wc_bits_c(0)) & " .. "
-                   & integer'image(wc_bits_c(8)) & " bits worst case"
+                   & integer'image(MASTER_ID_DEFAULT)
             severity note;
         return true;
 
@@ -269,49 +211,6 @@ architecture rtl of omni_engine is
     -- Helpers (is_off, keep_bytes, bit_int, sat_add: canopen_util_pkg)
     -- ---------------------------------------------------------------------------------------------
 
-    -- broadcast data (A1): [sender]? then the axes, highest first; 1 byte (low 8 bits) per axis,
-    -- or 2 bytes big-endian per axis (w2 = '1')
-
-    function bc_data (sp : sp_arr_t; n : natural; w2 : std_logic; snd : std_logic;
-        mid : std_logic_vector(7 downto 0)) return std_logic_vector is
-
-        variable r : std_logic_vector(63 downto 0);
-        variable s : natural range 0 to 1;
-
-    begin
-
-        r := (others => '0');
-        s := 0;
-
-        if w2 = '0' and snd = '1' then
-            r(7 downto 0) := mid;
-            s             := 1;
-        end if;
-
-        for j in 0 to 7 loop
-
-            for a in 0 to max_axes_c - 1 loop
-
-                if w2 = '0' then
-                    if j >= s and a + j = n - 1 + s then
-                        r(8 * j + 7 downto 8 * j) := sp(a)(7 downto 0);
-                    end if;
-                elsif a + j / 2 = n - 1 then
-                    if j mod 2 = 0 then
-                        r(8 * j + 7 downto 8 * j) := sp(a)(15 downto 8);
-                    else
-                        r(8 * j + 7 downto 8 * j) := sp(a)(7 downto 0);
-                    end if;
-                end if;
-
-            end loop;
-
-        end loop;
-
-        return r;
-
-    end function bc_data;
-
     -- number of '1' bits
 
     function ones (v : std_logic_vector) return natural is
@@ -333,19 +232,6 @@ architecture rtl of omni_engine is
         return c;
 
     end function ones;
-
-    -- worst-case bits of a frame with DLC d (9..15 count as 8)
-
-    function wc_of (d : std_logic_vector(3 downto 0)) return natural is
-    begin
-
-        if d(3) = '1' then
-            return wc_bits_c(8);
-        end if;
-
-        return wc_bits_c(to_integer(unsigned(d(2 downto 0))));
-
-    end function wc_of;
 
     -- the last value of a modulo-n count: n - 1, and 0 for n = 0 (acts as 1)
 
@@ -382,17 +268,27 @@ architecture rtl of omni_engine is
     signal cfg_err : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Set-points: staging (host), pending (COMMIT), active (applied at cyc_take_i)
+    -- Set-points: staging (host), committed (COMMIT), the cycle frame built from them
     -- ---------------------------------------------------------------------------------------------
-    signal staging  : sp_arr_t;
-    signal pend_set : sp_arr_t;
-    signal act_set  : sp_arr_t;
-    signal pending  : std_logic;
-    -- the set the next take activates; its broadcast frame
-    signal cur_set : sp_arr_t;
-    signal bc_id   : std_logic_vector(10 downto 0);
-    signal bc_dlc  : std_logic_vector(3 downto 0);
-    signal bc_dat  : std_logic_vector(63 downto 0);
+    signal staging : sp_arr_t;
+    -- the set of the last COMMIT (the set the next take sends); PENDING: a commit not yet taken
+    signal com_set : sp_arr_t;
+    signal pending : std_logic;
+    -- broadcast id and DLC of the configuration registers (feasibility, the frame builder)
+    signal bc_id  : std_logic_vector(10 downto 0);
+    signal bc_dlc : std_logic_vector(3 downto 0);
+    -- frame builder: rebuilds the broadcast frame from com_set and the configuration one byte
+    -- per cycle after a COMMIT or an OMNI_CFG write (restarts on a new one); the finished frame
+    -- is copied into frm_* in one edge, frm_fresh = 1 while frm_* is the frame of the current
+    -- com_set and configuration
+    signal b_run     : std_logic;
+    signal b_byte    : natural range 0 to 8;
+    signal b_data    : std_logic_vector(63 downto 0);
+    signal b_next    : std_logic_vector(7 downto 0);
+    signal frm_id    : std_logic_vector(10 downto 0);
+    signal frm_dlc   : std_logic_vector(3 downto 0);
+    signal frm_data  : std_logic_vector(63 downto 0);
+    signal frm_fresh : std_logic;
     -- the next cycle frame is the Omni SYNC
     signal sync_now : std_logic;
 
@@ -523,19 +419,11 @@ architecture rtl of omni_engine is
     signal ev_q       : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Feasibility (pipelined: serial sum over the terms, products, compare)
+    -- Feasibility (omni_feasibility: worst-case bits of one cycle, the cycle fits the period)
     -- ---------------------------------------------------------------------------------------------
-    signal f_idx    : natural range 0 to N_SLOTS + 1;
-    signal f_term   : natural range 0 to 255;
-    signal f_last   : std_logic;
-    signal f_acc    : unsigned(15 downto 0);
-    signal f_bits   : unsigned(15 downto 0);
-    signal f_prod_a : unsigned(47 downto 0);
-    signal f_prod_b : unsigned(47 downto 0);
-    -- per 12-bit chunk of the products: a < b, a = b
-    signal f_lt     : std_logic_vector(3 downto 0);
-    signal f_eq     : std_logic_vector(3 downto 0);
-    signal feasible : std_logic;
+    signal f_bits    : std_logic_vector(15 downto 0);
+    signal feasible  : std_logic;
+    signal s_dlc_vec : std_logic_vector(4 * N_SLOTS - 1 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
     -- Host window
@@ -601,8 +489,7 @@ begin
     -- Cycle frame (a function of registers only: what the core copies at cyc_take_i is what the
     -- engine records at the same edge)
     -- ---------------------------------------------------------------------------------------------
-    frame_proc : process (act_set, bc4x2, cur_set, kmod, master_id, n_axes, pend_set, pending,
-                          sender, sync_mode) is
+    frame_proc : process (bc4x2, kmod, master_id, n_axes, sender, sync_mode) is
 
         variable n_v : natural range 0 to 15;
 
@@ -616,12 +503,6 @@ begin
             cfg_err <= '0';
         end if;
 
-        if pending = '1' then
-            cur_set <= pend_set;
-        else
-            cur_set <= act_set;
-        end if;
-
         if bc4x2 = '1' then
             bc_id  <= fc_bc4_c & master_id;
             bc_dlc <= std_logic_vector(shift_left(unsigned(n_axes), 1));
@@ -629,8 +510,6 @@ begin
             bc_id  <= fc_bc8_c & master_id;
             bc_dlc <= std_logic_vector(unsigned(n_axes) + bit_int(sender));
         end if;
-
-        bc_dat <= bc_data(cur_set, n_v, bc4x2, sender, master_id);
 
         if sync_mode = '1' and kmod = 0 then
             sync_now <= '1';
@@ -640,9 +519,103 @@ begin
 
     end process frame_proc;
 
-    cyc_id_o   <= sync_id_c when sync_now = '1' else bc_id;
-    cyc_dlc_o  <= (others => '0') when sync_now = '1' else bc_dlc;
-    cyc_data_o <= (others => '0') when sync_now = '1' else keep_bytes(bc_dat, bc_dlc);
+    -- byte b_byte of the broadcast data (A1): [sender]? then the axes, highest first; 1 byte
+    -- (low 8 bits) per axis, or 2 bytes big-endian per axis (BCAST_4X2); 0 from the DLC on and
+    -- where the layout names no axis (CFG_ERR). One 8:1 multiplexer of 16 bits for all bytes.
+    byte_proc : process (b_byte, bc4x2, bc_dlc, com_set, master_id, n_axes, sender) is
+
+        variable j_v   : natural range 0 to 8;
+        variable a_v   : integer range -9 to 15;
+        variable w_v   : std_logic_vector(15 downto 0);
+        variable hi_v  : boolean;
+        variable mid_v : boolean;
+
+    begin
+
+        j_v   := b_byte;
+        mid_v := bc4x2 = '0' and sender = '1' and j_v = 0;
+
+        if bc4x2 = '1' then
+            -- axis n - 1 - j / 2: high byte at even j, low byte at odd j
+            a_v  := to_integer(unsigned(n_axes)) - 1 - j_v / 2;
+            hi_v := j_v mod 2 = 0;
+        else
+            -- axis n - 1 + s - j
+            a_v  := to_integer(unsigned(n_axes)) - 1 + bit_int(sender) - j_v;
+            hi_v := false;
+        end if;
+
+        w_v := (others => '0');
+
+        for a in 0 to max_axes_c - 1 loop
+
+            if a_v mod 8 = a then
+                w_v := com_set(a);
+            end if;
+
+        end loop;
+
+        if j_v >= to_integer(unsigned(bc_dlc)) or j_v > 7 then
+            b_next <= (others => '0');
+        elsif mid_v then
+            b_next <= master_id;
+        elsif a_v < 0 or a_v >= max_axes_c then
+            b_next <= (others => '0');
+        elsif hi_v then
+            b_next <= w_v(15 downto 8);
+        else
+            b_next <= w_v(7 downto 0);
+        end if;
+
+    end process byte_proc;
+
+    -- the builder: b_byte 0..7 writes b_data, b_byte 8 copies the frame; a COMMIT or an
+    -- OMNI_CFG write (re)starts it at byte 0 from the next edge (com_set and the configuration
+    -- registers take the new values at that edge)
+    build_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            b_run     <= '0';
+            b_byte    <= 0;
+            b_data    <= (others => '0');
+            frm_id    <= fc_bc8_c & std_logic_vector(to_unsigned(MASTER_ID_DEFAULT, 8));
+            frm_dlc   <= (others => '0');
+            frm_data  <= (others => '0');
+            frm_fresh <= '1';
+        elsif rising_edge(clk_i) then
+            if commit = '1' or wr_cfg = '1' then
+                b_run     <= '1';
+                b_byte    <= 0;
+                frm_fresh <= '0';
+            elsif b_run = '1' then
+                if b_byte = 8 then
+                    frm_id    <= bc_id;
+                    frm_dlc   <= bc_dlc;
+                    frm_data  <= b_data;
+                    frm_fresh <= '1';
+                    b_run     <= '0';
+                    b_byte    <= 0;
+                else
+                    b_byte <= b_byte + 1;
+
+                    for j in 0 to 7 loop
+
+                        if b_byte = j then
+                            b_data(8 * j + 7 downto 8 * j) <= b_next;
+                        end if;
+
+                    end loop;
+
+                end if;
+            end if;
+        end if;
+
+    end process build_proc;
+
+    cyc_id_o   <= sync_id_c when sync_now = '1' else frm_id;
+    cyc_dlc_o  <= (others => '0') when sync_now = '1' else frm_dlc;
+    cyc_data_o <= (others => '0') when sync_now = '1' else frm_data;
 
     -- ---------------------------------------------------------------------------------------------
     -- Transmit priority (A11, docs): stop all, NMT, broadcast after SYNC, query, reply, parameter
@@ -862,8 +835,7 @@ begin
     begin
 
         if rst_n_i = '0' then
-            pend_set   <= (others => (others => '0'));
-            act_set    <= (others => (others => '0'));
+            com_set    <= (others => (others => '0'));
             pending    <= '0';
             en_q       <= '0';
             cyc_cnt    <= (others => '0');
@@ -931,16 +903,16 @@ begin
             -- a take activates the pending set (the take happens before a fire in the same cycle)
             pend_v := pending;
             ts_v   := took_sync;
+            -- (the frame taken is the pending set's only when the builder has finished it)
             if cyc_take_i = '1' and run_v then
-                if pending = '1' then
-                    act_set <= pend_set;
-                    pend_v  := '0';
+                if frm_fresh = '1' then
+                    pend_v := '0';
                 end if;
                 ts_v := sync_now;
             end if;
             if commit = '1' then
-                pend_set <= staging;
-                pend_v   := '1';
+                com_set <= staging;
+                pend_v  := '1';
             end if;
             pending <= pend_v;
 
@@ -1341,9 +1313,9 @@ begin
         if rising_edge(clk_i) then
             -- broadcast of a SYNC cycle, latched at its take
             if cyc_take_i = '1' and sync_now = '1' then
-                bcq_id   <= bc_id;
-                bcq_dlc  <= bc_dlc;
-                bcq_data <= keep_bytes(bc_dat, bc_dlc);
+                bcq_id   <= frm_id;
+                bcq_dlc  <= frm_dlc;
+                bcq_data <= frm_data;
             end if;
 
             -- the frame starting now
@@ -1448,102 +1420,30 @@ begin
     end process fram_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Feasibility: bits of one worst-case cycle, summed one term per clock; then
-    -- bits * ns_per_bit <= period_us * 1000 (no divider; both constants divided by their gcd)
+    -- Feasibility: worst-case bits of one cycle against the period (omni_feasibility)
     -- ---------------------------------------------------------------------------------------------
-    feas_proc : process (clk_i, rst_n_i) is
 
-        variable term_v : natural range 0 to 255;
-        variable le_v   : std_logic;
+    s_dlc_gen : for k in 0 to N_SLOTS - 1 generate
+        s_dlc_vec(4 * k + 3 downto 4 * k) <= s_dlc(k);
+    end generate s_dlc_gen;
 
-    begin
-
-        if rst_n_i = '0' then
-            f_idx    <= 0;
-            f_term   <= 0;
-            f_last   <= '0';
-            f_acc    <= (others => '0');
-            f_bits   <= (others => '0');
-            f_prod_a <= (others => '1');
-            f_prod_b <= (others => '0');
-            f_lt     <= (others => '0');
-            f_eq     <= (others => '0');
-            feasible <= '0';
-        elsif rising_edge(clk_i) then
-            term_v := 0;
-
-            if f_idx = 0 then
-                term_v := wc_of(bc_dlc);
-            elsif f_idx = 1 then
-                if sync_mode = '1' then
-                    term_v := wc_bits_c(0);
-                end if;
-            else
-
-                for k in 0 to N_SLOTS - 1 loop
-
-                    if f_idx = k + 2 and s_valid(k) = '1' then
-                        term_v := wc_of(s_dlc(k));
-                    end if;
-
-                end loop;
-
-            end if;
-
-            -- the term is registered (with the last-term flag) and added one cycle later
-            f_term <= term_v;
-            if f_idx = N_SLOTS + 1 then
-                f_last <= '1';
-                f_idx  <= 0;
-            else
-                f_last <= '0';
-                f_idx  <= f_idx + 1;
-            end if;
-
-            if f_last = '1' then
-                f_bits <= f_acc + f_term;
-                f_acc  <= (others => '0');
-            else
-                f_acc <= f_acc + f_term;
-            end if;
-
-            f_prod_a <= resize(f_bits * to_unsigned(feas_a_c, 32), 48);
-            f_prod_b <= resize(unsigned(period_us_i) * to_unsigned(feas_b_c, 16), 48);
-
-            -- compare in two stages: four 12-bit chunks (less than / equal) registered, then
-            -- combined from the top chunk down
-            for c in 0 to 3 loop
-
-                if f_prod_a(12 * c + 11 downto 12 * c) < f_prod_b(12 * c + 11 downto 12 * c) then
-                    f_lt(c) <= '1';
-                else
-                    f_lt(c) <= '0';
-                end if;
-                if f_prod_a(12 * c + 11 downto 12 * c) = f_prod_b(12 * c + 11 downto 12 * c) then
-                    f_eq(c) <= '1';
-                else
-                    f_eq(c) <= '0';
-                end if;
-
-            end loop;
-
-            -- a <= b: from the lowest chunk up, a chunk less, or equal and the lower ones <=
-            le_v := f_lt(0) or f_eq(0);
-
-            for c in 1 to 3 loop
-
-                le_v := f_lt(c) or (f_eq(c) and le_v);
-
-            end loop;
-
-            if le_v = '1' and cfg_err = '0' then
-                feasible <= '1';
-            else
-                feasible <= '0';
-            end if;
-        end if;
-
-    end process feas_proc;
+    feas_inst : entity work.omni_feasibility
+        generic map (
+            N_SLOTS     => N_SLOTS,
+            BITRATE_BPS => BITRATE_BPS
+        )
+        port map (
+            clk_i        => clk_i,
+            rst_n_i      => rst_n_i,
+            bc_dlc_i     => bc_dlc,
+            sync_mode_i  => sync_mode,
+            slot_valid_i => s_valid,
+            slot_dlc_i   => s_dlc_vec,
+            period_us_i  => period_us_i,
+            cfg_err_i    => cfg_err,
+            bits_o       => f_bits,
+            feasible_o   => feasible
+        );
 
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
@@ -1674,7 +1574,7 @@ begin
             put(off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
         end if;
 
-        put(off_bits_c, at(std_logic_vector(f_bits), OMNI_BUS_BITS_BITS_HI_C,
+        put(off_bits_c, at(f_bits, OMNI_BUS_BITS_BITS_HI_C,
                            OMNI_BUS_BITS_BITS_LO_C));
 
         rd_mux <= v;

@@ -460,13 +460,15 @@ OMNI_REGISTERS: tuple[Register, ...] = (
       F("STOP_ON_MISSING", 15, "RW", 0, "queue NMT stop all ([00][00]) when a node misses a "
                                         "query")),
     R("OMNI_CTRL", 0xC2, "pulse", "Omni-ID commands",
-      F("COMMIT", 0, "pulse", 0, "the staging set-points become the active set at the next "
-                                 "cyc_take_i (OMNI_STATUS.PENDING until then)"),
+      F("COMMIT", 0, "pulse", 0, "the staging set-points become the active set at the first "
+                                 "cyc_take_i 10 or more cycles later (OMNI_STATUS.PENDING "
+                                 "until then)"),
       F("PARAM_SEND", 1, "pulse", 0, "queue the parameter frame of OMNI_PARAM_*"),
       F("CLR_COUNTERS", 2, "pulse", 0, "clear every OMNI_CNT_* and every slot's MISSED / "
                                        "LEN_ERR")),
     R("OMNI_STATUS", 0xC3, "RO", "Omni-ID engine status",
-      F("PENDING", 0, "RO", None, "a commit waits for the next cyc_take_i"),
+      F("PENDING", 0, "RO", None, "a commit waits for a cyc_take_i 10 or more cycles after "
+                                  "it"),
       F("INFEASIBLE", 1, "RO", None, "the worst-case cycle (OMNI_BUS_BITS) does not fit in "
                                      "the period, or CFG_ERR (feasible_o = 0)"),
       F("CFG_ERR", 2, "RO", None, "OMNI_CFG.N_AXES out of range for the layout"),

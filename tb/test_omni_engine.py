@@ -49,6 +49,10 @@ RX_BOUND_QUERY = 6
 #: counter read lag (docs/omni_engine.md): an event counted at edge e shows in every read with
 #: the address on reg_addr_i CNT_LAG cycles later (amounts registered: 1, bank: S + 3, S = 9)
 CNT_LAG = 13
+#: frame builder (docs/omni_engine.md): the cycle frame of a COMMIT or OMNI_CFG write at edge e
+#: is on cyc_* from edge e + BUILD_CYCLES on; a take before sends the previous frame and keeps
+#: PENDING
+BUILD_CYCLES = 10
 
 
 def off(name: str) -> int:
@@ -168,6 +172,7 @@ class TB:
     async def configure(self, *, n_axes: int = 4, bc4x2: bool = False, sender: bool = True,
                         sync_mode: bool = False, stop: bool = False, k: int = 1, m: int = 0,
                         qwin: int = 1000, slots=None, master: int = MASTER) -> None:
+        """Configure and wait until the cycle frame of the configuration is built."""
         await self.write("OMNI_CFG", R.make("OMNI_CFG", MASTER_ID=master, N_AXES=n_axes,
                                             BCAST_4X2=int(bc4x2), SENDER=int(sender),
                                             SYNC_MODE=int(sync_mode), STOP_ON_MISSING=int(stop)))
@@ -176,18 +181,25 @@ class TB:
         await self.write("OMNI_QUERY_WIN", qwin)
         for i, (node, fc, dlc) in enumerate(slots or []):
             await self.slot_cfg(i, node, fc, dlc)
+        await self.idle(BUILD_CYCLES)
 
     async def slot_cfg(self, slot: int, node: int, fc: int, dlc: int, valid: bool = True):
         await self.write("OMNI_SEL", slot)
         await self.write("OMNI_SLOT_CFG", R.make("OMNI_SLOT_CFG", NODE=node, FC=fc,
                                                  VALID=int(valid), DLC=dlc))
 
-    async def set_points(self, values: list[int], commit: bool = True) -> int | None:
+    async def set_points(self, values: list[int], commit: bool = True,
+                         settle: bool = True) -> int | None:
+        """Write the staging set-points and COMMIT (returns the commit edge); with settle,
+        wait until the commit's cycle frame is built."""
         vals = [v & 0xFFFF for v in values] + [0] * (8 - len(values))
         for i in range(4):
             await self.write(f"OMNI_SP{2 * i}{2 * i + 1}", vals[2 * i] | vals[2 * i + 1] << 16)
         if commit:
-            return await self.write("OMNI_CTRL", R.OMNI_CTRL_COMMIT)
+            t = await self.write("OMNI_CTRL", R.OMNI_CTRL_COMMIT)
+            if settle:
+                await self.idle(BUILD_CYCLES)
+            return t
         return None
 
     # ------------------------------------------------------------------ core side
@@ -328,28 +340,55 @@ async def run_broadcast_layouts(dut):
 
 @cocotb.test(timeout_time=20, timeout_unit="ms")
 async def run_double_buffer(dut):
-    """Purpose: a COMMIT applies exactly at the next cyc_take_i, never tears a frame.
+    """Purpose: a take sends the set of the newest COMMIT at least BUILD_CYCLES before it (a
+    COMMIT followed by another within BUILD_CYCLES is never sent); a COMMIT is applied
+    (PENDING falls) at the first take BUILD_CYCLES or more after it; a frame is never torn.
 
-    Verifies: 200 random steps (staging writes, commits, takes, take in the commit's cycle):
-    every taken frame carries the set of the last commit before the take edge, PENDING is 1
-    exactly while a commit waits; staging writes without commit never show.
+    Verifies: 300 random steps (staging writes, commits, takes 0..2*BUILD_CYCLES cycles after
+    the commit, take in the commit's cycle): every taken frame equals the reference (the set
+    of the newest commit at least BUILD_CYCLES before the take edge, zeros before any), PENDING
+    is 1 exactly while the newest commit has not been taken that way; staging writes without
+    commit never show; both sides of the build boundary are hit.
     """
     tb = TB(dut)
     await tb.start()
     await tb.configure(n_axes=8, sender=False)
     rng = random.Random(2)
-    active = [0] * 8
     staging = [0] * 8
-    pending = None
+    commits: list[tuple[int, list[int]]] = [(0, [0] * 8)]  # (commit edge, set)
+    pending = False
+    hits = {"early": 0, "built": 0}
     dut_ = dut
-    for step in range(200):
+
+    def expected(t_take: int) -> list[int]:
+        """Set of the newest commit at least BUILD_CYCLES before the take edge whose frame was
+        finished (no newer commit within BUILD_CYCLES after it)."""
+        build = BUILD_CYCLES * CLK_PS
+        done = [v for i, (t, v) in enumerate(commits)
+                if t_take - t >= build
+                and (i + 1 == len(commits) or commits[i + 1][0] - t >= build)]
+        return done[-1]
+
+    def take_done(t_take: int) -> None:
+        nonlocal pending
+        if pending:
+            if t_take - commits[-1][0] >= BUILD_CYCLES * CLK_PS:
+                pending = False
+                hits["built"] += 1
+            else:
+                hits["early"] += 1
+
+    for step in range(300):
         op = rng.random()
         if op < 0.4:
             staging = [rng.randrange(256) for _ in range(8)]
-            t_commit = await tb.set_points(staging, commit=rng.random() < 0.7)
-            if t_commit is not None:
-                pending = staging
-        elif op < 0.5 and pending is not None:
+            t = await tb.set_points(staging, commit=rng.random() < 0.7, settle=False)
+            if t is not None:
+                commits.append((t, staging))
+                pending = True
+                await tb.idle(rng.choice([0, 1, BUILD_CYCLES - 3, BUILD_CYCLES - 2,
+                                          BUILD_CYCLES - 1, BUILD_CYCLES, 2 * BUILD_CYCLES]))
+        elif op < 0.5 and pending:
             # commit and take sampled at the same edge: the take uses the old state
             await FallingEdge(dut_.clk_i)
             dut_.reg_addr_i.value = off("OMNI_CTRL")
@@ -357,23 +396,70 @@ async def run_double_buffer(dut):
             dut_.reg_we_i.value = 1
             dut_.cyc_take_i.value = 1
             await RisingEdge(dut_.clk_i)
+            t = sim_time_ps()
             got = tb.cyc_frame()
             dut_.reg_we_i.value = 0
             dut_.cyc_take_i.value = 0
-            assert list(reversed(got.data)) == pending, f"step {step}: same-edge take"
-            active, pending = pending, staging  # the take applied the earlier commit
+            assert list(reversed(got.data)) == expected(t), f"step {step}: same-edge take"
+            take_done(t)
+            commits.append((t, staging))
+            pending = True
         else:
             got = await tb.take()
-            if pending is not None:
-                active, pending = pending, None
-            assert list(reversed(got.data)) == active, f"step {step}: {got}"
-        assert await tb.field("OMNI_STATUS", "PENDING") == int(pending is not None)
+            t = sim_time_ps()
+            assert list(reversed(got.data)) == expected(t), f"step {step}: {got}"
+            take_done(t)
+        assert await tb.field("OMNI_STATUS", "PENDING") == int(pending)
+    assert hits["early"] >= 5 and hits["built"] >= 5, hits
 
 
 def sync_cycles(n_cycles: int, k: int) -> list[bool]:
     """Reference: cycle k (0-based, from the first cycle_i after enable) is a SYNC cycle when
     k mod K = 0; its cycle frame is the one copied at the take before cycle_i number k."""
     return [c % k == 0 for c in range(n_cycles)]
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_config_change_frame(dut):
+    """Purpose: an OMNI_CFG write changes the cycle frame whole, BUILD_CYCLES after the write.
+
+    Verifies: for every distance 0..BUILD_CYCLES + 2 cycles between an OMNI_CFG write (N_AXES
+    3 <-> 5, SENDER on/off, master id) and a take: the taken frame is the reference frame of
+    the old configuration before BUILD_CYCLES and of the new one from BUILD_CYCLES on (id, DLC
+    and bytes of one configuration, never a mix); a second write inside the build restarts it.
+    """
+    tb = TB(dut)
+    await tb.start()
+    vals = [0x11, 0x22, 0x33, 0x44, 0x55]
+    await tb.configure(n_axes=3, sender=True)
+    await tb.set_points(vals)
+
+    def cfg(n: int, snd: bool, master: int) -> int:
+        return R.make("OMNI_CFG", MASTER_ID=master, N_AXES=n, SENDER=int(snd))
+
+    def ref(n: int, snd: bool, master: int) -> tuple:
+        return frame_key(oc.broadcast_frame(oc.FC_BCAST_8X1, master, vals[:n], with_sender=snd))
+
+    old, new = (3, True, MASTER), (5, False, MASTER + 1)
+    for dist in range(BUILD_CYCLES + 3):
+        for a, b in ((old, new), (new, old)):
+            t_w = await tb.write("OMNI_CFG", cfg(*b))
+            await tb.idle(max(dist - 1, 0))
+            got = await tb.take()
+            d = (sim_time_ps() - t_w) // CLK_PS
+            exp = ref(*b) if d >= BUILD_CYCLES else ref(*a)
+            assert frame_key(got) == exp, f"{d} cycles after the write: {got}"
+            await tb.idle(BUILD_CYCLES)  # b's frame is built before the next write
+    # a second write inside the build: the frame of the first never shows
+    await tb.write("OMNI_CFG", cfg(*new))
+    await tb.idle(BUILD_CYCLES - 4)
+    t_w = await tb.write("OMNI_CFG", cfg(*old))
+    await tb.idle(BUILD_CYCLES - 2)
+    got = await tb.take()
+    assert (sim_time_ps() - t_w) // CLK_PS == BUILD_CYCLES - 1
+    assert frame_key(got) == ref(*old), "restarted build: the first write's frame showed"
+    got = await tb.take()
+    assert frame_key(got) == ref(*old)
 
 
 @cocotb.test(timeout_time=30, timeout_unit="ms")
