@@ -1818,70 +1818,75 @@ begin
             r := sel_r_ok;
             v := (others => '0');
 
+            -- AND-OR: one decoded offset at most, every term ORed in (no priority chain)
             if is_off(a, off_sel_c) then
-                v := at(std_logic_vector(to_unsigned(sel_ch, 5)), PDO_SEL_CH_HI_C, PDO_SEL_CH_LO_C)
+                v := v or at(std_logic_vector(to_unsigned(sel_ch, 5)), PDO_SEL_CH_HI_C,
+                             PDO_SEL_CH_LO_C)
                      or at(sel_rpdo, PDO_SEL_RPDO_C) or at(sel_ref, PDO_SEL_REFUSED_C);
-            elsif is_off(a, off_info_c) then
-                v := at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
-                        PDO_INFO_N_TPDO_LO_C)
+            end if;
+            if is_off(a, off_info_c) then
+                v := v or at(std_logic_vector(to_unsigned(N_TPDO, 6)), PDO_INFO_N_TPDO_HI_C,
+                             PDO_INFO_N_TPDO_LO_C)
                      or at(std_logic_vector(to_unsigned(N_RPDO, 6)), PDO_INFO_N_RPDO_HI_C,
                              PDO_INFO_N_RPDO_LO_C);
-            elsif is_off(a, off_cfg_c) then
-                if t = '1' or r = '1' then
-                    v := at(c(cw_cob_hi_c downto cw_cob_lo_c), PDO_CFG_COB_ID_HI_C,
-                            PDO_CFG_COB_ID_LO_C)
-                         or at(c(cw_rtr_c), PDO_CFG_RTR_C) or at(c(cw_valid_c), PDO_CFG_VALID_C)
-                         or at(c(cw_dlc_hi_c downto cw_dlc_lo_c), PDO_CFG_DLC_HI_C,
-                                 PDO_CFG_DLC_LO_C)
-                         or at(c(cw_tt_hi_c downto cw_tt_lo_c), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
-                end if;
-            elsif is_off(a, off_inh_c) then
+            end if;
+            if is_off(a, off_cfg_c) and (t = '1' or r = '1') then
+                v := v or at(c(cw_cob_hi_c downto cw_cob_lo_c), PDO_CFG_COB_ID_HI_C,
+                             PDO_CFG_COB_ID_LO_C)
+                     or at(c(cw_rtr_c), PDO_CFG_RTR_C) or at(c(cw_valid_c), PDO_CFG_VALID_C)
+                     or at(c(cw_dlc_hi_c downto cw_dlc_lo_c), PDO_CFG_DLC_HI_C, PDO_CFG_DLC_LO_C)
+                     or at(c(cw_tt_hi_c downto cw_tt_lo_c), PDO_CFG_TT_HI_C, PDO_CFG_TT_LO_C);
+            end if;
+            if is_off(a, off_inh_c) and t = '1' then
+                v := v or at(c(cw_inh_hi_c downto cw_inh_lo_c), PDO_INHIBIT_TIME_100US_HI_C,
+                             PDO_INHIBIT_TIME_100US_LO_C);
+            end if;
+            if is_off(a, off_lo_c) then
                 if t = '1' then
-                    v := at(c(cw_inh_hi_c downto cw_inh_lo_c), PDO_INHIBIT_TIME_100US_HI_C,
-                            PDO_INHIBIT_TIME_100US_LO_C);
-                end if;
-            elsif is_off(a, off_lo_c) then
-                if t = '1' then
-                    v := stg_view(31 downto 0);
+                    v := v or stg_view(31 downto 0);
                 elsif r = '1' and snap_ok = '1' then
-                    v := rr_q(31 downto 0);
+                    v := v or rr_q(31 downto 0);
                 end if;
-            elsif is_off(a, off_hi_c) then
+            end if;
+            if is_off(a, off_hi_c) then
                 if t = '1' then
-                    v := stg_view(63 downto 32);
+                    v := v or stg_view(63 downto 32);
                 elsif r = '1' and snap_ok = '1' then
-                    v := rr_q(63 downto 32);
+                    v := v or rr_q(63 downto 32);
                 end if;
-            elsif is_off(a, off_cmd_c) then
+            end if;
+            if is_off(a, off_cmd_c) then
                 if t = '1' then
-                    v := at(sel_inh, PDO_CMD_INHIBITED_C) or at(sel_pend, PDO_CMD_PENDING_C)
+                    v := v or at(sel_inh, PDO_CMD_INHIBITED_C) or at(sel_pend, PDO_CMD_PENDING_C)
                          or at(sel_due, PDO_CMD_DUE_C);
                 elsif r = '1' then
-                    v := at(snap_new, PDO_CMD_NEW_C) or at(sel_poll, PDO_CMD_POLL_DUE_C);
+                    v := v or at(snap_new, PDO_CMD_NEW_C) or at(sel_poll, PDO_CMD_POLL_DUE_C);
                 end if;
-            elsif is_off(a, off_seq_c) then
+            end if;
+            if is_off(a, off_seq_c) then
                 if t = '1' then
-                    v := at(s(15 downto 0), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C);
+                    v := v or at(s(15 downto 0), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C);
                 elsif r = '1' and snap_ok = '1' then
-                    v := at(rr_q(79 downto 64), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C)
+                    v := v or at(rr_q(79 downto 64), PDO_SEQ_SEQ_HI_C, PDO_SEQ_SEQ_LO_C)
                          or at(rr_q(87 downto 80), PDO_SEQ_SYNC_COUNT_HI_C,
                                  PDO_SEQ_SYNC_COUNT_LO_C);
                 end if;
-            elsif is_off(a, off_err_c) then
-                if r = '1' then
-                    v := at(s(31 downto 16), PDO_ERR_LEN_ERR_HI_C, PDO_ERR_LEN_ERR_LO_C)
-                         or at(s(47 downto 32), PDO_ERR_MISSED_HI_C, PDO_ERR_MISSED_LO_C);
-                end if;
-            elsif is_off(a, off_late_c) then
-                if t = '1' then
-                    v := at(s(31 downto 16), PDO_LATE_LATE_HI_C, PDO_LATE_LATE_LO_C);
-                end if;
-            elsif is_off(a, off_rx_new_c) then
-                v := at(r_new, N_RPDO - 1, 0);
-            elsif is_off(a, off_tx_due_c) then
-                v := at(t_due, N_TPDO - 1, 0);
-            elsif is_off(a, off_tx_pend_c) then
-                v := at(t_pend, N_TPDO - 1, 0);
+            end if;
+            if is_off(a, off_err_c) and r = '1' then
+                v := v or at(s(31 downto 16), PDO_ERR_LEN_ERR_HI_C, PDO_ERR_LEN_ERR_LO_C)
+                     or at(s(47 downto 32), PDO_ERR_MISSED_HI_C, PDO_ERR_MISSED_LO_C);
+            end if;
+            if is_off(a, off_late_c) and t = '1' then
+                v := v or at(s(31 downto 16), PDO_LATE_LATE_HI_C, PDO_LATE_LATE_LO_C);
+            end if;
+            if is_off(a, off_rx_new_c) then
+                v := v or at(r_new, N_RPDO - 1, 0);
+            end if;
+            if is_off(a, off_tx_due_c) then
+                v := v or at(t_due, N_TPDO - 1, 0);
+            end if;
+            if is_off(a, off_tx_pend_c) then
+                v := v or at(t_pend, N_TPDO - 1, 0);
             end if;
 
             -- PDO_CNT_*: the counter bank's read data, selected after the edge (rd_cnt)
