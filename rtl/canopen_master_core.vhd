@@ -115,8 +115,7 @@ architecture rtl of canopen_master_core is
     -- ---------------------------------------------------------------------------------------------
     -- Timing constants
     -- ---------------------------------------------------------------------------------------------
-    constant cycles_per_us_c : positive := (CLK_FREQ_HZ + 999_999) / 1_000_000;
-    constant backoff_us_c    : positive := 1000 * REINIT_BACKOFF_MS;
+    constant backoff_us_c : positive := 1000 * REINIT_BACKOFF_MS;
     -- bus-off: the MCP2510 returns to error-active by itself after 128 x 11 recessive bits;
     -- on a loaded bus one such sequence ends each frame, so 128 longest frames (160 bits)
     -- bound it. Only a chip still bus-off after that is re-initialised (G1).
@@ -222,12 +221,10 @@ architecture rtl of canopen_master_core is
     -- Datapath registers
     -- ---------------------------------------------------------------------------------------------
     -- timebase
-    signal us_div  : natural range 0 to cycles_per_us_c - 1;
     signal tick_us : std_logic;
     signal tick_ms : std_logic;
-    signal ms_div  : natural range 0 to 999;
-    signal time_us : unsigned(31 downto 0);
-    signal time_ms : unsigned(31 downto 0);
+    signal time_us : std_logic_vector(31 downto 0);
+    signal time_ms : std_logic_vector(31 downto 0);
     -- Receive_Data (thesis: 13-byte frame register filled in St3)
     signal rx_frame : can_frame_t;
     -- Transmit_Data (thesis: frame register filled in St11) and its buffer plan
@@ -269,13 +266,18 @@ architecture rtl of canopen_master_core is
     signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
     signal nmt_cmd_node : std_logic_vector(6 downto 0);
     -- SYNC producer
-    signal sync_timer   : unsigned(31 downto 0);
-    signal sync_loaded  : std_logic;
-    signal sync_late    : std_logic;
-    signal sync_counter : unsigned(7 downto 0);
-    signal sync_count   : unsigned(31 downto 0);
-    signal sync_sent    : unsigned(7 downto 0);
-    signal sync_fire    : std_logic;
+    -- SYNC producer (canopen_sync_timebase): TXB2 holds a valid SYNC, fire strobe, the
+    -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period
+    signal sync_loaded    : std_logic;
+    signal sync_counter   : std_logic_vector(7 downto 0);
+    signal sync_count     : std_logic_vector(31 downto 0);
+    signal sync_sent      : std_logic_vector(7 downto 0);
+    signal sync_fire      : std_logic;
+    signal sync_timer     : std_logic_vector(31 downto 0);
+    signal sync_load_done : std_logic;
+    -- the SYNC timer is in the second half of the period
+    signal sync_half  : std_logic;
+    signal sync_encap : std_logic;
     -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
     signal sync_fire_q : std_logic;
     -- error latch (St13)
@@ -453,7 +455,6 @@ architecture rtl of canopen_master_core is
     signal om_preload_ok : std_logic;
     signal enter_pdo     : std_logic;
     -- synchronous window (1007h semantics): open from each SYNC for SYNC_WINDOW_US, 0 = always
-    signal window_us   : unsigned(31 downto 0);
     signal window_open : std_logic;
     -- block inputs gated by the protocol mode (CTRL.OMNI): the PDO engine and the node monitor
     -- run in CANopen mode, the Omni-ID engine in Omni-ID mode
@@ -498,11 +499,6 @@ architecture rtl of canopen_master_core is
     signal nmt_ref_view : std_logic;
     -- ACFG_STATUS.REFUSED as the host reads it
     signal acfg_ref_view : std_logic;
-    -- SYNC_OVERFLOW as the last cycle saw it; a change invalidates the SYNC preloaded in TXB2
-    -- (sync_stale: also one being loaded) and restarts the counter at 1
-    signal sync_ovf_q   : std_logic_vector(7 downto 0);
-    signal sync_ovf_chg : std_logic;
-    signal sync_stale   : std_logic;
     -- the EMCY FIFO head as the host sees it: 0 while the FIFO is empty (its RAM has no reset)
     signal emcy_head_ok : std_logic;
     signal emcy_node_h  : std_logic_vector(6 downto 0);
@@ -519,38 +515,41 @@ architecture rtl of canopen_master_core is
 begin
 
     -- ---------------------------------------------------------------------------------------------
-    -- Timebase: 1 us and 1 ms strobes, free-running counters
+    -- Time base and SYNC producer (exact period, counter byte, synchronous window)
     -- ---------------------------------------------------------------------------------------------
-    timebase_proc : process (clk_i, rst_n_i) is
-    begin
+    -- St12 loaded TXB2 with the SYNC; St2 builds a SYNC frame (generation source 0)
+    sync_load_done <= '1' when in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c else
+                      '0';
+    sync_encap     <= '1' when in_encap = '1' and gen_src = 0 else
+                      '0';
 
-        if rst_n_i = '0' then
-            us_div  <= 0;
-            ms_div  <= 0;
-            tick_us <= '0';
-            tick_ms <= '0';
-            time_us <= (others => '0');
-            time_ms <= (others => '0');
-        elsif rising_edge(clk_i) then
-            tick_us <= '0';
-            tick_ms <= '0';
-            if us_div = cycles_per_us_c - 1 then
-                us_div  <= 0;
-                tick_us <= '1';
-                time_us <= time_us + 1;
-                if ms_div = 999 then
-                    ms_div  <= 0;
-                    tick_ms <= '1';
-                    time_ms <= time_ms + 1;
-                else
-                    ms_div <= ms_div + 1;
-                end if;
-            else
-                us_div <= us_div + 1;
-            end if;
-        end if;
-
-    end process timebase_proc;
+    sync_tb_inst : entity work.canopen_sync_timebase
+        generic map (
+            CLK_FREQ_HZ => CLK_FREQ_HZ
+        )
+        port map (
+            clk_i            => clk_i,
+            rst_n_i          => rst_n_i,
+            tick_us_o        => tick_us,
+            tick_ms_o        => tick_ms,
+            time_us_o        => time_us,
+            time_ms_o        => time_ms,
+            sync_en_i        => sync_en,
+            sync_period_us_i => sync_period_us,
+            sync_overflow_i  => sync_overflow,
+            sync_window_us_i => sync_window_us,
+            load_done_i      => sync_load_done,
+            encap_sync_i     => sync_encap,
+            init_done_i      => ctl_init_done_i,
+            sync_loaded_o    => sync_loaded,
+            sync_fire_o      => sync_fire,
+            sync_fire_q_o    => sync_fire_q,
+            sync_counter_o   => sync_counter,
+            sync_sent_o      => sync_sent,
+            sync_count_o     => sync_count,
+            sync_timer_o     => sync_timer,
+            window_open_o    => window_open
+        );
 
     -- ---------------------------------------------------------------------------------------------
     -- FSM conditions
@@ -561,9 +560,9 @@ begin
     err_pending   <= err_can or err_busoff or err_reinit or err_node or err_chip;
     sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
                      and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
-    om_preload_ok <= '1' when om_feasible = '1'
-                              and sync_timer >= shift_right(unsigned(sync_period_us), 1) else
+    sync_half     <= '1' when unsigned(sync_timer) >= shift_right(unsigned(sync_period_us), 1) else
                      '0';
+    om_preload_ok <= om_feasible and sync_half;
     -- a generation is only dispatched when its TX buffer is free
     nmt_gen_req <= (nmt_pending or acfg_nmt_pending or (mon_tx_req and not omni_en))
                    and not ctl_tx_pending_i(1);
@@ -681,16 +680,6 @@ begin
             nmt_pending      <= '0';
             nmt_refused      <= '0';
             acfg_nmt_pending <= '0';
-            sync_timer       <= (others => '0');
-            sync_loaded      <= '0';
-            sync_late        <= '0';
-            sync_counter     <= to_unsigned(1, 8);
-            sync_count       <= (others => '0');
-            sync_sent        <= (others => '0');
-            sync_fire        <= '0';
-            sync_fire_q      <= '0';
-            sync_ovf_q       <= (others => '0');
-            sync_stale       <= '0';
             err_can          <= '0';
             err_busoff       <= '0';
             err_reinit       <= '0';
@@ -705,15 +694,12 @@ begin
             sdo_tx_ack       <= '0';
             mon_tx_ack       <= '0';
             pdo_tx_ack       <= '0';
-            window_us        <= (others => '0');
             init_done_q      <= '0';
             init_fail_q      <= '0';
             can_tec          <= (others => '0');
             can_rec          <= (others => '0');
             can_eflg         <= (others => '0');
         elsif rising_edge(clk_i) then
-            sync_fire    <= '0';
-            sync_fire_q  <= sync_fire;
             reinit_pulse <= '0';
             sdo_tx_ack   <= '0';
             mon_tx_ack   <= '0';
@@ -780,7 +766,7 @@ begin
                             tx_frame.data <= om_cyc_data;
                         elsif unsigned(sync_overflow) >= 2 then
                             tx_frame.dlc              <= x"1";
-                            tx_frame.data(7 downto 0) <= std_logic_vector(sync_counter);
+                            tx_frame.data(7 downto 0) <= sync_counter;
                         end if;
                         tx_buf  <= txb_sync_c;
                         tx_txp  <= "11";
@@ -849,9 +835,6 @@ begin
             if in_tx = '1' and ctl_tx_ready_i = '1' then
                 tx_requested <= '1';
             end if;
-            if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c then
-                sync_loaded <= not sync_stale;
-            end if;
             if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_cmd_c then
                 txb1_id <= tx_frame.id;
                 if gen_src = 3 and tx_sdo_req = '1' then
@@ -890,66 +873,6 @@ begin
             elsif sync_fire = '1' and txb0_sync = '1' and omni_en = '0' then
                 pdo_cancel_req <= not pdo_cancel_sent;
             end if;
-            -- a RESET of the chip (any re-initialisation: bus-off, INIT retry, CTRL.REINIT)
-            -- leaves TXB2 undefined: nothing is fired until St2/St12 have loaded it again
-            if ctl_init_done_i = '0' then
-                sync_loaded <= '0';
-            end if;
-
-            -- SYNC producer: exact period in clock cycles, started by the TX2RTS pin ---------
-            if sync_en = '0' or unsigned(sync_period_us) = 0 then
-                sync_timer <= (others => '0');
-                sync_late  <= '0';
-            elsif tick_us = '1' then
-                if sync_timer + 1 >= unsigned(sync_period_us) then
-                    sync_timer <= (others => '0');
-                    if sync_loaded = '1' then
-                        sync_fire <= '1';
-                    else
-                        sync_late <= '1';
-                    end if;
-                else
-                    sync_timer <= sync_timer + 1;
-                end if;
-            end if;
-            if sync_late = '1' and sync_loaded = '1' and sync_fire = '0' then
-                sync_late <= '0';
-                sync_fire <= '1';
-            end if;
-            if sync_fire = '1' then
-                window_us <= (others => '0');
-            elsif tick_us = '1' and window_us /= x"FFFFFFFF" then
-                window_us <= window_us + 1;
-            end if;
-            if sync_fire = '1' then
-                sync_loaded <= '0';
-                sync_count  <= sync_count + 1;
-                -- what the PDOs of this cycle belong to: the counter byte of the SYNC just sent,
-                -- or (SYNC without counter byte) the number of SYNCs sent, modulo 256
-                if unsigned(sync_overflow) >= 2 then
-                    sync_sent <= sync_counter;
-                else
-                    sync_sent <= sync_count(7 downto 0) + 1;
-                end if;
-                if unsigned(sync_overflow) >= 2 and sync_counter >= unsigned(sync_overflow) then
-                    sync_counter <= to_unsigned(1, 8);
-                elsif unsigned(sync_overflow) >= 2 then
-                    sync_counter <= sync_counter + 1;
-                end if;
-            end if;
-            -- SYNC_OVERFLOW changed (CiA 301 1019h): the counter restarts at 1 and the SYNC
-            -- preloaded in TXB2 (or being loaded) is built again, so the next SYNC sent uses
-            -- the new value; a SYNC already started (TX2RTS fired) is not affected
-            sync_ovf_q <= sync_overflow;
-            if in_encap = '1' and gen_src = 0 then
-                sync_stale <= '0';
-            end if;
-            if sync_ovf_chg = '1' then
-                sync_counter <= to_unsigned(1, 8);
-                sync_loaded  <= '0';
-                sync_stale   <= '1';
-            end if;
-
             -- error latch --------------------------------------------------------------------
             if ctl_int_valid_i = '1' and ctl_int_canintf_i(intf_errif_c) = '1' then
                 err_can <= '1';
@@ -1027,8 +950,6 @@ begin
 
     watchdog <= '1' when wd_us = WATCHDOG_US else '0';
 
-    sync_ovf_chg <= '1' when sync_overflow /= sync_ovf_q else
-                    '0';
     -- masked from the entry into St0 (G1) until the controller has dropped init_done
     init_done_fsm <= ctl_init_done_i and not reinit_wait and not reinit_pulse
                      and not (in_init and state_change);
@@ -1048,12 +969,9 @@ begin
     ctl_tx_cancel_o <= (0 => pdo_cancel_pulse, 1 => cancel_pulse, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
-    enter_sdo   <= in_sdo_proc and state_change;
-    enter_pdo   <= in_pdo_proc and state_change;
-    window_open <= '1' when unsigned(sync_window_us) = 0 else
-                   '1' when window_us < unsigned(sync_window_us) else
-                   '0';
-    enter_nmt   <= in_nmt_proc and state_change;
+    enter_sdo <= in_sdo_proc and state_change;
+    enter_pdo <= in_pdo_proc and state_change;
+    enter_nmt <= in_nmt_proc and state_change;
 
     -- events and counters for the host block
     ev_node_any    <= or_reduce(ev_lost) or or_reduce(ev_toggle) or or_reduce(ev_bootup);
@@ -1209,7 +1127,7 @@ begin
             clk_i               => clk_i,
             rst_n_i             => rst_n_i,
             tick_ms_i           => tick_ms,
-            time_ms_i           => std_logic_vector(time_ms),
+            time_ms_i           => time_ms,
             cfg_node_i          => cfg_node,
             cfg_mode_i          => cfg_mode,
             cfg_time_i          => cfg_time,
@@ -1268,7 +1186,7 @@ begin
             clk_i           => clk_i,
             rst_n_i         => rst_n_i,
             sync_i          => pe_sync,
-            sync_count_i    => std_logic_vector(sync_sent),
+            sync_count_i    => sync_sent,
             window_open_i   => window_open,
             tick_us_i       => tick_us,
             reg_addr_i      => pdo_reg_addr,
@@ -1550,8 +1468,8 @@ begin
             err_passive_i            => can_err_passive,
             nmt_busy_i               => nmt_pending,
             nmt_refused_i            => nmt_ref_view,
-            sync_count_i             => std_logic_vector(sync_count),
-            time_us_i                => std_logic_vector(time_us),
+            sync_count_i             => sync_count,
+            time_us_i                => time_us,
             tec_i                    => can_tec,
             rec_i                    => can_rec,
             eflg_i                   => can_eflg,
