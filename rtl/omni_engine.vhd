@@ -279,16 +279,15 @@ architecture rtl of omni_engine is
     signal bc_dlc : std_logic_vector(3 downto 0);
     -- frame builder: rebuilds the broadcast frame from com_set and the configuration one byte
     -- per cycle after a COMMIT or an OMNI_CFG write (restarts on a new one); the finished frame
-    -- is copied into frm_* in one edge, frm_fresh = 1 while frm_* is the frame of the current
-    -- com_set and configuration
-    signal b_run     : std_logic;
-    signal b_byte    : natural range 0 to 8;
-    signal b_data    : std_logic_vector(63 downto 0);
-    signal b_next    : std_logic_vector(7 downto 0);
-    signal frm_id    : std_logic_vector(10 downto 0);
-    signal frm_dlc   : std_logic_vector(3 downto 0);
-    signal frm_data  : std_logic_vector(63 downto 0);
-    signal frm_fresh : std_logic;
+    -- is copied into frm_* in one edge; b_run = 0: frm_* is the frame of the current com_set
+    -- and configuration
+    signal b_run    : std_logic;
+    signal b_byte   : natural range 0 to 8;
+    signal b_data   : std_logic_vector(63 downto 0);
+    signal b_next   : std_logic_vector(7 downto 0);
+    signal frm_id   : std_logic_vector(10 downto 0);
+    signal frm_dlc  : std_logic_vector(3 downto 0);
+    signal frm_data : std_logic_vector(63 downto 0);
     -- the next cycle frame is the Omni SYNC
     signal sync_now : std_logic;
 
@@ -576,26 +575,23 @@ begin
     begin
 
         if rst_n_i = '0' then
-            b_run     <= '0';
-            b_byte    <= 0;
-            b_data    <= (others => '0');
-            frm_id    <= fc_bc8_c & std_logic_vector(to_unsigned(MASTER_ID_DEFAULT, 8));
-            frm_dlc   <= (others => '0');
-            frm_data  <= (others => '0');
-            frm_fresh <= '1';
+            b_run    <= '0';
+            b_byte   <= 0;
+            b_data   <= (others => '0');
+            frm_id   <= fc_bc8_c & std_logic_vector(to_unsigned(MASTER_ID_DEFAULT, 8));
+            frm_dlc  <= (others => '0');
+            frm_data <= (others => '0');
         elsif rising_edge(clk_i) then
             if commit = '1' or wr_cfg = '1' then
-                b_run     <= '1';
-                b_byte    <= 0;
-                frm_fresh <= '0';
+                b_run  <= '1';
+                b_byte <= 0;
             elsif b_run = '1' then
                 if b_byte = 8 then
-                    frm_id    <= bc_id;
-                    frm_dlc   <= bc_dlc;
-                    frm_data  <= b_data;
-                    frm_fresh <= '1';
-                    b_run     <= '0';
-                    b_byte    <= 0;
+                    frm_id   <= bc_id;
+                    frm_dlc  <= bc_dlc;
+                    frm_data <= b_data;
+                    b_run    <= '0';
+                    b_byte   <= 0;
                 else
                     b_byte <= b_byte + 1;
 
@@ -903,9 +899,9 @@ begin
             -- a take activates the pending set (the take happens before a fire in the same cycle)
             pend_v := pending;
             ts_v   := took_sync;
-            -- (the frame taken is the pending set's only when the builder has finished it)
+            -- (the pending set is taken only when the builder has finished its frame: b_run = 0)
             if cyc_take_i = '1' and run_v then
-                if frm_fresh = '1' then
+                if b_run = '0' then
                     pend_v := '0';
                 end if;
                 ts_v := sync_now;
