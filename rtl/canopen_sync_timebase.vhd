@@ -26,11 +26,18 @@
 --     fired until the SYNC is preloaded again.
 --   Order of the updates of one edge (the last one wins): preload done, chip not initialised,
 --   fire, SYNC_OVERFLOW change. docs/canopen_master_top.md (SYNC producer) for the timing.
+--   The 32-bit counters count in two 16-bit halves (inc_split: the upper half steps on a
+--   registered "lower half all ones" flag) and the 32-bit compares are split the same way
+--   (lt_split): no path through all 32 bits. The period end compares the timer's next value
+--   (sync_next = sync_timer + 1, kept as its own counter) with the period.
 -- =================================================================================================
 
 library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
+
+library work;
+    use work.canopen_util_pkg.all;
 
 entity canopen_sync_timebase is
     generic (
@@ -77,8 +84,14 @@ architecture rtl of canopen_sync_timebase is
     signal tick_ms : std_logic;
     signal time_us : unsigned(31 downto 0);
     signal time_ms : unsigned(31 downto 0);
-    -- SYNC producer
+    -- inc_split flags of the counters: the lower half is all ones
+    signal time_us_lo1 : std_logic;
+    signal time_ms_lo1 : std_logic;
+    -- SYNC producer; sync_next = sync_timer + 1 at all times
     signal sync_timer   : unsigned(31 downto 0);
+    signal sync_next    : unsigned(31 downto 0);
+    signal sync_nx_lo1  : std_logic;
+    signal sync_cnt_lo1 : std_logic;
     signal sync_loaded  : std_logic;
     signal sync_late    : std_logic;
     signal sync_counter : unsigned(7 downto 0);
@@ -91,7 +104,8 @@ architecture rtl of canopen_sync_timebase is
     signal sync_ovf_chg : std_logic;
     signal sync_stale   : std_logic;
     -- synchronous window: us since the last fire (saturating)
-    signal window_us : unsigned(31 downto 0);
+    signal window_us  : unsigned(31 downto 0);
+    signal window_lo1 : std_logic;
 
 begin
 
@@ -102,23 +116,27 @@ begin
     begin
 
         if rst_n_i = '0' then
-            us_div  <= 0;
-            ms_div  <= 0;
-            tick_us <= '0';
-            tick_ms <= '0';
-            time_us <= (others => '0');
-            time_ms <= (others => '0');
+            us_div      <= 0;
+            ms_div      <= 0;
+            tick_us     <= '0';
+            tick_ms     <= '0';
+            time_us     <= (others => '0');
+            time_ms     <= (others => '0');
+            time_us_lo1 <= '0';
+            time_ms_lo1 <= '0';
         elsif rising_edge(clk_i) then
             tick_us <= '0';
             tick_ms <= '0';
             if us_div = cycles_per_us_c - 1 then
-                us_div  <= 0;
-                tick_us <= '1';
-                time_us <= time_us + 1;
+                us_div      <= 0;
+                tick_us     <= '1';
+                time_us     <= inc_split(time_us, time_us_lo1);
+                time_us_lo1 <= lo_ones_after_inc(time_us);
                 if ms_div = 999 then
-                    ms_div  <= 0;
-                    tick_ms <= '1';
-                    time_ms <= time_ms + 1;
+                    ms_div      <= 0;
+                    tick_ms     <= '1';
+                    time_ms     <= inc_split(time_ms, time_ms_lo1);
+                    time_ms_lo1 <= lo_ones_after_inc(time_ms);
                 else
                     ms_div <= ms_div + 1;
                 end if;
@@ -140,6 +158,9 @@ begin
 
         if rst_n_i = '0' then
             sync_timer   <= (others => '0');
+            sync_next    <= to_unsigned(1, 32);
+            sync_nx_lo1  <= '0';
+            sync_cnt_lo1 <= '0';
             sync_loaded  <= '0';
             sync_late    <= '0';
             sync_counter <= to_unsigned(1, 8);
@@ -150,6 +171,7 @@ begin
             sync_ovf_q   <= (others => '0');
             sync_stale   <= '0';
             window_us    <= (others => '0');
+            window_lo1   <= '0';
         elsif rising_edge(clk_i) then
             sync_fire   <= '0';
             sync_fire_q <= sync_fire;
@@ -165,33 +187,45 @@ begin
             end if;
 
             -- exact period in clock cycles, started by the TX2RTS pin
+            -- (sync_timer + 1 >= period, i.e. not sync_next < period)
             if sync_en_i = '0' or unsigned(sync_period_us_i) = 0 then
-                sync_timer <= (others => '0');
-                sync_late  <= '0';
+                sync_timer  <= (others => '0');
+                sync_next   <= to_unsigned(1, 32);
+                sync_nx_lo1 <= '0';
+                sync_late   <= '0';
             elsif tick_us = '1' then
-                if sync_timer + 1 >= unsigned(sync_period_us_i) then
-                    sync_timer <= (others => '0');
+                if not lt_split(sync_next, unsigned(sync_period_us_i)) then
+                    sync_timer  <= (others => '0');
+                    sync_next   <= to_unsigned(1, 32);
+                    sync_nx_lo1 <= '0';
                     if sync_loaded = '1' then
                         sync_fire <= '1';
                     else
                         sync_late <= '1';
                     end if;
                 else
-                    sync_timer <= sync_timer + 1;
+                    sync_timer  <= sync_next;
+                    sync_next   <= inc_split(sync_next, sync_nx_lo1);
+                    sync_nx_lo1 <= lo_ones_after_inc(sync_next);
                 end if;
             end if;
             if sync_late = '1' and sync_loaded = '1' and sync_fire = '0' then
                 sync_late <= '0';
                 sync_fire <= '1';
             end if;
+            -- (saturates: all ones is the upper half all ones with the lower half's flag)
             if sync_fire = '1' then
-                window_us <= (others => '0');
-            elsif tick_us = '1' and window_us /= x"FFFFFFFF" then
-                window_us <= window_us + 1;
+                window_us  <= (others => '0');
+                window_lo1 <= '0';
+            elsif tick_us = '1'
+                  and not (window_lo1 = '1' and window_us(31 downto 16) = x"FFFF") then
+                window_us  <= inc_split(window_us, window_lo1);
+                window_lo1 <= lo_ones_after_inc(window_us);
             end if;
             if sync_fire = '1' then
-                sync_loaded <= '0';
-                sync_count  <= sync_count + 1;
+                sync_loaded  <= '0';
+                sync_count   <= inc_split(sync_count, sync_cnt_lo1);
+                sync_cnt_lo1 <= lo_ones_after_inc(sync_count);
                 -- what the PDOs of this cycle belong to: the counter byte of the SYNC just sent,
                 -- or (SYNC without counter byte) the number of SYNCs sent, modulo 256
                 if unsigned(sync_overflow_i) >= 2 then
@@ -224,7 +258,7 @@ begin
     end process sync_proc;
 
     window_open_o <= '1' when unsigned(sync_window_us_i) = 0 else
-                     '1' when window_us < unsigned(sync_window_us_i) else
+                     '1' when lt_split(window_us, unsigned(sync_window_us_i)) else
                      '0';
 
     tick_us_o      <= tick_us;
