@@ -319,7 +319,9 @@ async def run_cycles(tb: SystemTB, axes: Sequence[Axis], n_cycles: int, period_u
         count = await h.read("SYNC_COUNT")
         run.sync_counts.append(count - run.first_sync)
         if c == n_cycles:
-            await h.sync_config(period_us=0, enable=False)
+            # SYNC off with SYNC_OVERFLOW unchanged: a change would restart the counter at 1
+            # in the next run and counter_of() counts SYNCs since reset
+            await h.sync_config(period_us=0, overflow=SYNC_OVERFLOW, enable=False)
         else:
             for a in axes:
                 await h.tpdo_write(a.ch, sp(a.ch, c + 1))
@@ -339,7 +341,7 @@ async def run_cycles(tb: SystemTB, axes: Sequence[Axis], n_cycles: int, period_u
             missed = await h.read("PDO_CNT_MISSED")
             if bad or late or missed or (c > 1 and not bus_cycle_complete(tb, axes)):
                 run.n_cycles = c
-                await h.sync_config(period_us=0, enable=False)
+                await h.sync_config(period_us=0, overflow=SYNC_OVERFLOW, enable=False)
                 break
     run.wall_s = time.monotonic() - wall0
     await h.irq_enable(0)
