@@ -276,8 +276,10 @@ architecture rtl of canopen_master_core is
     signal sync_timer     : std_logic_vector(31 downto 0);
     signal sync_load_done : std_logic;
     -- the SYNC timer is in the second half of the period
-    signal sync_half  : std_logic;
-    signal sync_encap : std_logic;
+    signal sync_half : std_logic;
+    -- SYNC_PERIOD_US / 2 (the Omni-ID preload waits until the timer has passed it)
+    signal sync_period_half : unsigned(31 downto 0);
+    signal sync_encap       : std_logic;
     -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
     signal sync_fire_q : std_logic;
     -- error latch (St13)
@@ -557,12 +559,14 @@ begin
     -- sync_due: in the cycle after a fire, sync_loaded is already 0 but the controller shows
     -- TXB2 pending only one cycle later: without sync_fire_q, St2..St12 could preload TXB2
     -- behind the SYNC just started and St12 wait for its transmission (fuzz finding 2)
-    err_pending   <= err_can or err_busoff or err_reinit or err_node or err_chip;
-    sync_due      <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
-                     and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
-    sync_half     <= '1' when unsigned(sync_timer) >= shift_right(unsigned(sync_period_us), 1) else
-                     '0';
-    om_preload_ok <= om_feasible and sync_half;
+    err_pending <= err_can or err_busoff or err_reinit or err_node or err_chip;
+    sync_due    <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
+                   and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
+    -- (split compare: two 16-bit halves side by side, canopen_util_pkg)
+    sync_period_half <= shift_right(unsigned(sync_period_us), 1);
+    sync_half        <= '0' when lt_split(unsigned(sync_timer), sync_period_half) else
+                        '1';
+    om_preload_ok    <= om_feasible and sync_half;
     -- a generation is only dispatched when its TX buffer is free
     nmt_gen_req <= (nmt_pending or acfg_nmt_pending or (mon_tx_req and not omni_en))
                    and not ctl_tx_pending_i(1);
