@@ -588,8 +588,7 @@ architecture rtl of canopen_sdo_channels is
     signal fetch_ph   : natural range 0 to 3;
     signal fetch_addr : unsigned(addr_w_c - 1 downto 0);
     signal seg_buf    : std_logic_vector(55 downto 0);
-    -- the next download segment's byte count (1..7) and last-segment flag, registered from the
-    -- context while the read unit fetches its bytes
+    -- the next download segment's size min(size_req - pos, 7) and last flag (taken during the read)
     signal seg_cnt_q  : unsigned(3 downto 0);
     signal seg_last_q : std_logic;
     -- write unit: phase (0 idle, 1 bytes 0..3, 2 bytes 4..6), byte address, count, bytes
@@ -1455,35 +1454,6 @@ begin
     end process rx_dec_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- The next download segment, min(size_req - pos, 7) bytes and last when the rest fits,
-    -- registered ahead of its use (a data-path register, no reset) so that the subtraction and
-    -- the compare are not in the frame-build path. Taken in the read unit's first cycle
-    -- (fetch_ph = 1, the cycle after do_dl_seg, which may set the context), used in E_WAIT
-    -- after the read (fetch_ph = 0 again): ctx.size_req and ctx.pos do not change in between.
-    -- ---------------------------------------------------------------------------------------------
-    seg_size_proc : process (clk_i) is
-
-        variable rem_v : unsigned(cnt_w_c - 1 downto 0);
-
-    begin
-
-        if rising_edge(clk_i) then
-            if fetch_ph = 1 then
-                rem_v := ctx.size_req - ctx.pos;
-
-                if rem_v > sdo_seg_bytes_c then
-                    seg_cnt_q  <= to_unsigned(sdo_seg_bytes_c, 4);
-                    seg_last_q <= '0';
-                else
-                    seg_cnt_q  <= rem_v(3 downto 0);
-                    seg_last_q <= '1';
-                end if;
-            end if;
-        end if;
-
-    end process seg_size_proc;
-
-    -- ---------------------------------------------------------------------------------------------
     -- The engine: one work item at a time (read the context, process, write back), the buffer
     -- units, the receive capture
     -- ---------------------------------------------------------------------------------------------
@@ -1492,6 +1462,7 @@ begin
         variable tmo_exp   : boolean;
         variable cnt       : unsigned(3 downto 0);
         variable last_v    : std_logic;
+        variable rem_v     : unsigned(cnt_w_c - 1 downto 0);
         variable tgl_v     : std_logic;
         variable data_v    : std_logic_vector(55 downto 0);
         variable do_dl_seg : boolean;
@@ -1533,6 +1504,8 @@ begin
             nohit_pipe    <= (others => '0');
             fetch_ph      <= 0;
             wr_ph         <= 0;
+            seg_cnt_q     <= (others => '0');
+            seg_last_q    <= '0';
         elsif rising_edge(clk_i) then
             rx_done_q  <= '0';
             reload_q   <= '0';
@@ -1557,7 +1530,16 @@ begin
 
                 when 1 =>
 
-                    fetch_ph <= 2;
+                    -- the segment's size ahead of the build in E_WAIT, out of its path (the
+                    -- cycle after do_dl_seg; ctx.size_req and ctx.pos do not change in the read)
+                    fetch_ph   <= 2;
+                    rem_v      := ctx.size_req - ctx.pos;
+                    seg_cnt_q  <= to_unsigned(sdo_seg_bytes_c, 4);
+                    seg_last_q <= '0';
+                    if rem_v <= sdo_seg_bytes_c then
+                        seg_cnt_q  <= rem_v(3 downto 0);
+                        seg_last_q <= '1';
+                    end if;
 
                 when 2 =>
 
@@ -1797,7 +1779,6 @@ begin
                             end if;
                         elsif bld = B_SEG then
                             -- the next download segment from the bytes just read
-                            -- (size from seg_size_proc, taken during the read)
                             cnt          := seg_cnt_q;
                             last_v       := seg_last_q;
                             data_v       := first_bytes(seg_buf, cnt);
