@@ -265,9 +265,9 @@ architecture rtl of canopen_master_core is
     signal nmt_refused  : std_logic;
     signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
     signal nmt_cmd_node : std_logic_vector(6 downto 0);
-    -- SYNC producer
     -- SYNC producer (canopen_sync_timebase): TXB2 holds a valid SYNC, fire strobe, the
-    -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period
+    -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period; its
+    -- two strobes from St12 (TXB2 loaded with the SYNC) and St2 (a SYNC frame built)
     signal sync_loaded    : std_logic;
     signal sync_counter   : std_logic_vector(7 downto 0);
     signal sync_count     : std_logic_vector(31 downto 0);
@@ -275,11 +275,11 @@ architecture rtl of canopen_master_core is
     signal sync_fire      : std_logic;
     signal sync_timer     : std_logic_vector(31 downto 0);
     signal sync_load_done : std_logic;
-    -- the SYNC timer is in the second half of the period
-    signal sync_half : std_logic;
-    -- SYNC_PERIOD_US / 2 (the Omni-ID preload waits until the timer has passed it)
+    signal sync_encap     : std_logic;
+    -- the SYNC timer is in the second half of the period (SYNC_PERIOD_US / 2 or later): the
+    -- Omni-ID preload waits for it
+    signal sync_half        : std_logic;
     signal sync_period_half : unsigned(31 downto 0);
-    signal sync_encap       : std_logic;
     -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
     signal sync_fire_q : std_logic;
     -- error latch (St13)

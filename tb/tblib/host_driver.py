@@ -216,6 +216,13 @@ class CanopenMasterHost:
         await self.write("SYNC_WINDOW_US", R.make("SYNC_WINDOW_US", VALUE=window_us))
         await self.write("CTRL", R.make("CTRL", SYNC_EN=int(enable)))
 
+    async def sync_stop(self) -> None:
+        """Stop the SYNC producer (period 0, SYNC_EN = 0) and leave SYNC_OVERFLOW and
+        SYNC_WINDOW_US as they are: rewriting SYNC_OVERFLOW with another value restarts the
+        counter at 1 (CiA 301 1019h), which a later restart with the old value would then show."""
+        await self.write("SYNC_PERIOD_US", R.make("SYNC_PERIOD_US", VALUE=0))
+        await self.write("CTRL", R.make("CTRL", SYNC_EN=0))
+
     async def reinit(self) -> None:
         """Re-initialise the CAN controller (CTRL.REINIT pulse; SYNC_EN kept)."""
         ctrl = await self.read("CTRL")

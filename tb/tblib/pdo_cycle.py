@@ -321,7 +321,7 @@ async def run_cycles(tb: SystemTB, axes: Sequence[Axis], n_cycles: int, period_u
         if c == n_cycles:
             # SYNC off with SYNC_OVERFLOW unchanged: a change would restart the counter at 1
             # in the next run and counter_of() counts SYNCs since reset
-            await h.sync_config(period_us=0, overflow=SYNC_OVERFLOW, enable=False)
+            await h.sync_stop()
         else:
             for a in axes:
                 await h.tpdo_write(a.ch, sp(a.ch, c + 1))
@@ -341,7 +341,7 @@ async def run_cycles(tb: SystemTB, axes: Sequence[Axis], n_cycles: int, period_u
             missed = await h.read("PDO_CNT_MISSED")
             if bad or late or missed or (c > 1 and not bus_cycle_complete(tb, axes)):
                 run.n_cycles = c
-                await h.sync_config(period_us=0, overflow=SYNC_OVERFLOW, enable=False)
+                await h.sync_stop()
                 break
     run.wall_s = time.monotonic() - wall0
     await h.irq_enable(0)
