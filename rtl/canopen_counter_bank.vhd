@@ -241,17 +241,19 @@ begin
             z1 <= zero0;
             t1 <= take0;
 
-            -- stage 1 -> 2: low half plus the pending count, carry registered
+            -- stage 1 -> 2: low half plus the pending count, carry registered; a counter that
+            -- reads as 0 takes the pending count alone (a select after the adder, which works
+            -- on the RAM word: the zero flag is not in the adder's path)
+            base_v := unsigned(sw_q);
+            s1_v   := resize(base_v(lo_bits_c - 1 downto 0), s1_bits_c) + resize(t1, s1_bits_c);
             if z1 = '1' then
                 base_v := (others => '0');
-            else
-                base_v := unsigned(sw_q);
+                s1_v   := resize(t1, s1_bits_c);
             end if;
-            s1_v := resize(base_v(lo_bits_c - 1 downto 0), s1_bits_c) + resize(t1, s1_bits_c);
-            a2   <= a1;
-            lo2  <= s1_v(lo_bits_c - 1 downto 0);
-            cy2  <= s1_v(s1_bits_c - 1 downto lo_bits_c);
-            hi2  <= base_v(CNT_BITS - 1 downto lo_bits_c);
+            a2  <= a1;
+            lo2 <= s1_v(lo_bits_c - 1 downto 0);
+            cy2 <= s1_v(s1_bits_c - 1 downto lo_bits_c);
+            hi2 <= base_v(CNT_BITS - 1 downto lo_bits_c);
         end if;
 
     end process data_proc;

@@ -1240,6 +1240,83 @@ async def run_tpdo_cancelled_counted_late(dut):
     assert cnt["late"] == 2 == len(tb.strobes["ev_late_o"]) - base, cnt
 
 
+@cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_selected_channel_follows_engine(dut):
+    """Purpose: the window of a channel that stays selected follows the engine's writes of
+    that channel, and a counter cleared by CLR_COUNTERS counts from 1 at its first event.
+
+    Verifies: with TPDO 0 (TT 1) selected once, PDO_SEQ read after each of three SYNCs equals
+    the frames taken so far, without a new selection. With the inhibit tick held off
+    (tick_us_i = 0: no sweep visit between the clear and the event), CLR_COUNTERS between a
+    frame's tx_ack_i and its tx_cancelled_i, then the late count: PDO_LATE = 1 and
+    PDO_CNT_LATE = 1. With RPDO 1 selected, CLR_COUNTERS, then one frame of the wrong DLC:
+    PDO_ERR.LEN_ERR = 1, after a second one 2, without a new selection. With RPDO 2 (TT 1)
+    selected and missing after one PDO, CLR_COUNTERS, one SYNC: MISSED = 1.
+    """
+    tb = TB(dut)
+    await tb.start(slave_tpdos=False)
+    host = tb.host
+    await host.tpdo_config(0, 0x201, 6, 1)
+    await host.tpdo_write(0, b"\x5a" * 6)
+    await host.write("PDO_SEL", R.make("PDO_SEL", CH=0))
+    tb.sync_start()
+    for n in range(1, 4):
+        await tb.wait_syncs(1)
+        await Timer(300, "us")
+        seq = (await host.read_fields("PDO_SEQ"))["SEQ"]
+        assert seq == len(tb.sent(0x201)) == n, (seq, n)
+    tb.sync_stop()
+    await Timer(1500, "us")
+    dut.tick_us_i.value = 0
+    # the next frame of TPDO 0: taken (its SEQ write), counters cleared, then withdrawn
+    n_tx = len(tb.tx_log)
+    tb.sync_start()
+    await tb.wait_syncs(1)
+    tb.sync_stop()
+    await tb.wait_for(lambda: len(tb.tx_log) > n_tx, 200, 1)
+    await host.pdo_clear_counters()
+    assert await host.read("PDO_LATE") == 0
+    await FallingEdge(dut.clk_i)
+    dut.tx_cancelled_i.value = 1
+    await FallingEdge(dut.clk_i)
+    dut.tx_cancelled_i.value = 0
+    await Timer(20, "us")
+    assert await host.read("PDO_LATE") == 1
+    assert await host.read("PDO_CNT_LATE") == 1
+    await Timer(1500, "us")
+    # RPDO 1 selected: LEN_ERR counts from 1 after the clear
+    await host.rpdo_config(1, 0x182, 8, 255)
+    await host.write("PDO_SEL", R.make("PDO_SEL", RPDO=1, CH=1))
+    await host.pdo_clear_counters()
+    for n in (1, 2):
+        tb.clock.sync()
+        tb.requester.send(make_message(0x182, bytes(4)))
+        await tb.wait_for(lambda n=n: len(tb.rx_log) == n, 500, 1)
+        await Timer(20, "us")
+        err = await host.read_fields("PDO_ERR")
+        assert err["LEN_ERR"] == n and err["MISSED"] == 0, err
+    # RPDO 2 (TT 1) selected: armed by one PDO, then missed at every SYNC; MISSED counts from
+    # 1 after the clear (the SYNC visit is the first write after it)
+    await host.rpdo_config(2, 0x183, 8, 1)
+    await host.write("PDO_SEL", R.make("PDO_SEL", RPDO=1, CH=2))
+    tb.clock.sync()
+    tb.requester.send(make_message(0x183, bytes(8)))
+    await tb.wait_for(lambda: len(tb.rx_log) == 3, 500, 1)
+    tb.sync_start()
+    await tb.wait_syncs(3)
+    tb.sync_stop()
+    await Timer(1500, "us")
+    assert (await host.read_fields("PDO_ERR"))["MISSED"] >= 1
+    await host.pdo_clear_counters()
+    assert (await host.read_fields("PDO_ERR"))["MISSED"] == 0
+    tb.sync_start()
+    await tb.wait_syncs(1)
+    tb.sync_stop()
+    await Timer(50, "us")
+    err = await host.read_fields("PDO_ERR")
+    assert err == {"LEN_ERR": 0, "MISSED": 1}, err
+
+
 @cocotb.test(timeout_time=50, timeout_unit="ms", expect_fail=True)
 async def run_od_checker_can_fail(dut):
     """Purpose: prove the slave OD / frame checker fails on a wrong expectation.
