@@ -9,7 +9,9 @@
 --   COB-ID function codes of the predefined connection set, NMT command specifiers, NMT state
 --   bytes of heartbeat/boot-up/guarding messages, SDO command specifiers and abort codes, and the
 --   frame record exchanged between the master's blocks. Each constant names the CiA 301 clause
---   it comes from (docs/canopen.md repeats the table).
+--   it comes from (docs/canopen.md repeats the table). Helpers: COB-ID from function code and
+--   node, the effective COB-ID of an SDO channel (eff_cob) and the SDO client's abort code by
+--   a 3-bit select (abort_code_of).
 -- =================================================================================================
 
 library ieee;
@@ -109,6 +111,17 @@ package canopen_pkg is
 
     function node_of (id : cob_id_t) return node_id_t;
 
+    -- effective COB-ID: the configured one, or the default function code + node
+
+    function eff_cob (cfg : std_logic_vector(10 downto 0); fc : func_code_t;
+        node : std_logic_vector(6 downto 0)) return std_logic_vector;
+
+    -- the abort codes of the SDO client (canopen_sdo_channels' decision on a received frame:
+    -- csel 1..5; 0 selects rx_code, the code of a received abort)
+
+    function abort_code_of (csel : natural range 0 to 5; rx_code : std_logic_vector(31 downto 0))
+        return std_logic_vector;
+
 end package canopen_pkg;
 
 package body canopen_pkg is
@@ -133,5 +146,51 @@ package body canopen_pkg is
         return id(6 downto 0);
 
     end function node_of;
+
+    function eff_cob (cfg : std_logic_vector(10 downto 0); fc : func_code_t;
+        node : std_logic_vector(6 downto 0)) return std_logic_vector is
+    begin
+
+        if unsigned(cfg) = 0 then
+            return cob_id(fc, node);
+        end if;
+
+        return cfg;
+
+    end function eff_cob;
+
+    function abort_code_of (csel : natural range 0 to 5; rx_code : std_logic_vector(31 downto 0))
+        return std_logic_vector is
+    begin
+
+        case csel is
+
+            when 1 =>
+
+                return SDO_ABORT_CS_C;
+
+            when 2 =>
+
+                return SDO_ABORT_GENERAL_C;
+
+            when 3 =>
+
+                return SDO_ABORT_TOGGLE_C;
+
+            when 4 =>
+
+                return SDO_ABORT_OUT_OF_MEM_C;
+
+            when 5 =>
+
+                return SDO_ABORT_LENGTH_C;
+
+            when others =>
+
+                return rx_code;
+
+        end case;
+
+    end function abort_code_of;
 
 end package body canopen_pkg;

@@ -290,90 +290,6 @@ architecture rtl of canopen_sdo_channels is
 
     end function state_code;
 
-    -- byte j (0..3) of a word
-
-    function byte_of (v : std_logic_vector(31 downto 0); j : unsigned(1 downto 0))
-        return std_logic_vector is
-    begin
-
-        case j is
-
-            when "00" =>
-
-                return v(7 downto 0);
-
-            when "01" =>
-
-                return v(15 downto 8);
-
-            when "10" =>
-
-                return v(23 downto 16);
-
-            when others =>
-
-                return v(31 downto 24);
-
-        end case;
-
-    end function byte_of;
-
-    -- lane outputs read at byte address a (lane k holds byte 4w+k) -> bytes a..a+3 in order
-
-    function from_lanes (v : std_logic_vector(31 downto 0); lo : unsigned(1 downto 0))
-        return std_logic_vector is
-    begin
-
-        case lo is
-
-            when "00" =>
-
-                return v;
-
-            when "01" =>
-
-                return v(7 downto 0) & v(31 downto 8);
-
-            when "10" =>
-
-                return v(15 downto 0) & v(31 downto 16);
-
-            when others =>
-
-                return v(23 downto 0) & v(31 downto 24);
-
-        end case;
-
-    end function from_lanes;
-
-    -- the first n (0..7) bytes of a 7-byte vector, the others zero (keep_bytes of the package)
-
-    function first_bytes (v : std_logic_vector(55 downto 0); n : unsigned(3 downto 0))
-        return std_logic_vector is
-
-        variable r : std_logic_vector(63 downto 0);
-
-    begin
-
-        r := keep_bytes(x"00" & v, std_logic_vector(n));
-        return r(55 downto 0);
-
-    end function first_bytes;
-
-    -- effective COB-ID: the configured one, or the default function code + node
-
-    function eff_cob (cfg : std_logic_vector(10 downto 0); fc : func_code_t;
-        node : std_logic_vector(6 downto 0)) return std_logic_vector is
-    begin
-
-        if unsigned(cfg) = 0 then
-            return cob_id(fc, node);
-        end if;
-
-        return cfg;
-
-    end function eff_cob;
-
     subtype chan_vec_t is std_logic_vector(N_SDO - 1 downto 0);
 
     type cob_arr_t is array (0 to N_SDO - 1) of std_logic_vector(10 downto 0);
@@ -398,6 +314,7 @@ architecture rtl of canopen_sdo_channels is
         unexp    : std_logic;                       -- not for the transfer
         abort    : std_logic;                       -- answer with an abort frame (code)
         code     : std_logic_vector(31 downto 0);   -- abort code / the server's code
+        csel     : natural range 0 to 5;            -- the abort code (abort_code_of)
         srv      : std_logic;                       -- server abort: the transfer ends
         ok_end   : std_logic;                       -- the download ends successfully
         dl_seg   : std_logic;                       -- next download segment (toggle tgl)
@@ -408,9 +325,11 @@ architecture rtl of canopen_sdo_channels is
         wr_a     : unsigned(addr_w_c - 1 downto 0); -- byte address of the write
         wr_n     : unsigned(3 downto 0);            -- bytes to write
         wr_d     : std_logic_vector(55 downto 0);   -- the bytes
+        wexp     : std_logic;                       -- expedited upload: bytes 4..7 at 0
         pos      : unsigned(cnt_w_c - 1 downto 0);  -- position after the write
         acked_up : std_logic;                       -- download: bytes confirmed = acked
         acked    : unsigned(cnt_w_c - 1 downto 0);  -- its value
+        ack_sz   : std_logic;                       -- acked = size_req (else pos)
         init_ul  : std_logic;                       -- segmented upload: known / ind
         known    : std_logic;                       -- size indicated
         ind      : unsigned(cnt_w_c - 1 downto 0);  -- indicated size
@@ -532,8 +451,12 @@ architecture rtl of canopen_sdo_channels is
     signal disp_go : std_logic;
     signal disp_ev : ev_t;
     signal disp_ch : natural range 0 to N_SDO - 1;
-    -- the decision on the received frame (rx_dec_proc)
-    signal rxd : rxd_t;
+    -- the decision on the received frame (rx_dec_proc, from the context RAM's read data in
+    -- E_LOAD), registered with the context for E_RUN
+    signal rxd   : rxd_t;
+    signal rxd_q : rxd_t;
+    -- the context's timer is 0 (from the read data in E_LOAD, for the tick in E_RUN)
+    signal tmo_zero_q : std_logic;
     -- strobes of the engine to chan_proc (one cycle late): timer reloaded, request withdrawn
     signal reload_q : std_logic;
     signal wd_q     : std_logic;
@@ -692,8 +615,12 @@ begin
                  '0';
     st_size   <= host_size_i when host_go = '1' else
                  own_size_i;
-    st_big    <= '1' when st_upload = '0' and unsigned(st_size) > BUF_BYTES else
-                 '0';
+    -- download larger than the buffer: both sources compared, then selected (the compare is
+    -- not behind the start decision)
+    st_big <= '1' when host_go = '1' and host_upload_i = '0'
+                       and unsigned(host_size_i) > BUF_BYTES else
+              '1' when host_go = '0' and unsigned(own_size_i) > BUF_BYTES else
+              '0';
 
     st_ctx_proc : process (host_go, host_index_i, host_sub_i, own_index_i,
                            own_sub_i, st_size, st_upload, timeout_ms_i) is
@@ -920,7 +847,7 @@ begin
                     a_waddr(b) <= base + to_integer(ga(addr_w_c - 1 downto 2));
                 end if;
 
-                a_wdata(b) <= byte_of(grp, j);
+                a_wdata(b) <= word_byte(grp, j);
 
                 if resize(j, 4) < gcnt then
                     a_we(b) <= '1';
@@ -1276,7 +1203,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Decision on the received frame for the loaded channel (applied by the engine in E_RUN)
     -- ---------------------------------------------------------------------------------------------
-    rx_dec_proc : process (ctx, rx_data_q, rx_dlc_q, rx_rtr_q, state) is
+    rx_dec_proc : process (ctx_rdata, rx_data_q, rx_dlc_q, rx_rtr_q, state) is
 
         variable d      : rxd_t;
         variable cmd    : std_logic_vector(7 downto 0);
@@ -1284,12 +1211,18 @@ begin
         variable cnt    : unsigned(3 downto 0);
         variable total  : unsigned(cnt_w_c downto 0);
         variable ind_v  : unsigned(31 downto 0);
+        variable c      : ctx_t;
 
     begin
+
+        c := ctx_unpack(ctx_rdata);
 
         d.unexp    := '0';
         d.abort    := '0';
         d.code     := rx_data_q(63 downto 32);
+        d.csel     := 0;
+        d.wexp     := '0';
+        d.ack_sz   := '0';
         d.srv      := '0';
         d.ok_end   := '0';
         d.dl_seg   := '0';
@@ -1300,19 +1233,19 @@ begin
         d.wr_a     := (others => '0');
         d.wr_n     := (others => '0');
         d.wr_d     := rx_data_q(63 downto 8);
-        d.pos      := ctx.pos;
+        d.pos      := c.pos;
         d.acked_up := '0';
-        d.acked    := ctx.pos;
+        d.acked    := c.pos;
         d.init_ul  := '0';
         d.known    := '0';
         d.ind      := (others => '0');
         d.empty    := '0';
 
         cmd    := rx_data_q(7 downto 0);
-        mux_ok := rx_data_q(31 downto 8) = ctx.sub & ctx.idx;
+        mux_ok := rx_data_q(31 downto 8) = c.sub & c.idx;
         ind_v  := unsigned(rx_data_q(63 downto 32));
         cnt    := sdo_seg_bytes_c - resize(unsigned(cmd(sdo_n_hi_c downto sdo_seg_n_lo_c)), 4);
-        total  := resize(ctx.pos, cnt_w_c + 1) + cnt;
+        total  := resize(c.pos, cnt_w_c + 1) + cnt;
 
         if (state /= S_DL_INIT_WAIT and state /= S_DL_SEG_WAIT and state /= S_UL_INIT_WAIT
             and state /= S_UL_SEG_WAIT) or rx_rtr_q = '1' then
@@ -1322,6 +1255,7 @@ begin
         elsif rx_dlc_q /= sdo_dlc_c then
             d.abort := '1';
             d.code  := SDO_ABORT_CS_C;
+            d.csel  := 1;
         elsif cmd(sdo_cs_hi_c downto sdo_cs_lo_c) = SDO_CS_ABORT_C then
             -- server abort: only for our multiplexer
             if mux_ok then
@@ -1338,12 +1272,15 @@ begin
                     if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_INIT_C then
                         d.abort := '1';
                         d.code  := SDO_ABORT_CS_C;
+                        d.csel  := 1;
                     elsif not mux_ok then
                         d.abort := '1';
                         d.code  := SDO_ABORT_GENERAL_C;
-                    elsif ctx.expedited = '1' then
+                        d.csel  := 2;
+                    elsif c.expedited = '1' then
                         d.acked_up := '1';
-                        d.acked    := ctx.size_req;
+                        d.acked    := c.size_req;
+                        d.ack_sz   := '1';
                         d.ok_end   := '1';
                     else
                         d.dl_seg := '1';
@@ -1354,17 +1291,19 @@ begin
                     if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_DL_SEG_C then
                         d.abort := '1';
                         d.code  := SDO_ABORT_CS_C;
-                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
+                        d.csel  := 1;
+                    elsif cmd(sdo_t_bit_c) /= c.toggle then
                         d.abort := '1';
                         d.code  := SDO_ABORT_TOGGLE_C;
+                        d.csel  := 3;
                     else
                         d.acked_up := '1';
 
-                        if ctx.last_seg = '1' then
+                        if c.last_seg = '1' then
                             d.ok_end := '1';
                         else
                             d.dl_seg := '1';
-                            d.tgl    := not ctx.toggle;
+                            d.tgl    := not c.toggle;
                         end if;
                     end if;
 
@@ -1373,9 +1312,11 @@ begin
                     if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_INIT_C then
                         d.abort := '1';
                         d.code  := SDO_ABORT_CS_C;
+                        d.csel  := 1;
                     elsif not mux_ok then
                         d.abort := '1';
                         d.code  := SDO_ABORT_GENERAL_C;
+                        d.csel  := 2;
                     elsif cmd(sdo_e_bit_c) = '1' then
                         -- expedited: 4 - n bytes (4 when the size is not indicated)
                         if cmd(sdo_s_bit_c) = '1' then
@@ -1388,10 +1329,12 @@ begin
                         d.wr   := '1';
                         d.fin  := '1';
                         d.wr_d := x"000000" & rx_data_q(63 downto 32);
+                        d.wexp := '1';
                         d.pos  := resize(d.wr_n, cnt_w_c);
                     elsif cmd(sdo_s_bit_c) = '1' and ind_v > BUF_BYTES then
                         d.abort := '1';
                         d.code  := SDO_ABORT_OUT_OF_MEM_C;
+                        d.csel  := 4;
                     else
                         d.init_ul := '1';
                         d.known   := cmd(sdo_s_bit_c);
@@ -1404,28 +1347,34 @@ begin
                     if cmd(sdo_cs_hi_c downto sdo_cs_lo_c) /= SDO_SCS_UL_SEG_C then
                         d.abort := '1';
                         d.code  := SDO_ABORT_CS_C;
-                    elsif cmd(sdo_t_bit_c) /= ctx.toggle then
+                        d.csel  := 1;
+                    elsif cmd(sdo_t_bit_c) /= c.toggle then
                         d.abort := '1';
                         d.code  := SDO_ABORT_TOGGLE_C;
+                        d.csel  := 3;
                     elsif cmd(sdo_c_bit_c) = '0' and cnt = 0
-                          and ctx.empty_cnt = EMPTY_SEGS_MAX then
+                          and c.empty_cnt = EMPTY_SEGS_MAX then
                         -- one more segment without data and without an end: the server keeps
                         -- the transfer alive without progress
                         d.abort := '1';
                         d.code  := SDO_ABORT_GENERAL_C;
-                    elsif ctx.size_known = '1' and total > ctx.ind_size then
+                        d.csel  := 2;
+                    elsif c.size_known = '1' and total > c.ind_size then
                         d.abort := '1';
                         d.code  := SDO_ABORT_LENGTH_C;
+                        d.csel  := 5;
                     elsif total > BUF_BYTES then
                         d.abort := '1';
                         d.code  := SDO_ABORT_OUT_OF_MEM_C;
-                    elsif cmd(sdo_c_bit_c) = '1' and ctx.size_known = '1'
-                          and total /= ctx.ind_size then
+                        d.csel  := 4;
+                    elsif cmd(sdo_c_bit_c) = '1' and c.size_known = '1'
+                          and total /= c.ind_size then
                         d.abort := '1';
                         d.code  := SDO_ABORT_LENGTH_C;
+                        d.csel  := 5;
                     else
                         d.wr   := '1';
-                        d.wr_a := ctx.pos(addr_w_c - 1 downto 0);
+                        d.wr_a := c.pos(addr_w_c - 1 downto 0);
                         d.wr_n := cnt;
                         d.pos  := total(cnt_w_c - 1 downto 0);
 
@@ -1433,7 +1382,7 @@ begin
                             d.fin := '1';
                         else
                             d.ul_seg := '1';
-                            d.tgl    := not ctx.toggle;
+                            d.tgl    := not c.toggle;
 
                             if cnt = 0 then
                                 d.empty := '1';
@@ -1588,7 +1537,12 @@ begin
 
                 when E_LOAD =>
 
-                    ctx           <= ctx_unpack(ctx_rdata);
+                    ctx        <= ctx_unpack(ctx_rdata);
+                    rxd_q      <= rxd;
+                    tmo_zero_q <= '0';
+                    if ctx_unpack(ctx_rdata).tmo_cnt = 0 then
+                        tmo_zero_q <= '1';
+                    end if;
                     done_q        <= '0';
                     wdr_new_q     <= '0';
                     error_q       <= '0';
@@ -1618,62 +1572,71 @@ begin
 
                     -- received frame (decided by rx_dec_proc) ----------------------------------
                     if ev = EV_RX then
-                        rx_item_unexp <= rxd.unexp;
+                        rx_item_unexp <= rxd_q.unexp;
 
-                        if rxd.abort = '1' then
+                        if rxd_q.abort = '1' then
                             do_abort := true;
-                            abort_v  := rxd.code;
+                            abort_v  := abort_code_of(rxd_q.csel, rx_data_q(63 downto 32));
                         end if;
 
-                        if rxd.srv = '1' then
+                        if rxd_q.srv = '1' then
                             -- server abort: the transfer ends with its code, no frame
                             do_end   := true;
                             end_err  := '1';
-                            end_code := rxd.code;
+                            end_code := rx_data_q(63 downto 32);
                             end_sent := '0';
                         end if;
 
-                        if rxd.ok_end = '1' then
+                        if rxd_q.ok_end = '1' then
                             do_end := true;
                         end if;
 
-                        if rxd.acked_up = '1' then
-                            ctx.acked <= rxd.acked;
+                        if rxd_q.acked_up = '1' then
+                            if rxd_q.ack_sz = '1' then
+                                ctx.acked <= ctx.size_req;
+                            else
+                                ctx.acked <= ctx.pos;
+                            end if;
                         end if;
 
-                        if rxd.dl_seg = '1' then
+                        if rxd_q.dl_seg = '1' then
                             do_dl_seg := true;
-                            tgl_v     := rxd.tgl;
+                            tgl_v     := rxd_q.tgl;
                         end if;
 
-                        if rxd.ul_seg = '1' then
+                        if rxd_q.ul_seg = '1' then
                             do_ul_seg := true;
-                            tgl_v     := rxd.tgl;
+                            tgl_v     := rxd_q.tgl;
                         end if;
 
-                        if rxd.wr = '1' then
-                            wr_ph   <= 1;
-                            wr_addr <= rxd.wr_a;
-                            wr_cnt  <= rxd.wr_n;
-                            wr_data <= rxd.wr_d;
-                            ctx.pos <= rxd.pos;
+                        if rxd_q.wr = '1' then
+                            wr_ph  <= 1;
+                            wr_cnt <= rxd_q.wr_n;
+                            if rxd_q.wexp = '1' then
+                                wr_addr <= (others => '0');
+                                wr_data <= x"000000" & rx_data_q(63 downto 32);
+                            else
+                                wr_addr <= ctx.pos(addr_w_c - 1 downto 0);
+                                wr_data <= rx_data_q(63 downto 8);
+                            end if;
+                            ctx.pos <= rxd_q.pos;
                         end if;
 
-                        if rxd.fin = '1' then
+                        if rxd_q.fin = '1' then
                             state    <= S_FINISH;
                             fin_pend <= '1';
                         end if;
 
-                        if rxd.init_ul = '1' then
-                            ctx.size_known <= rxd.known;
-                            ctx.ind_size   <= rxd.ind;
+                        if rxd_q.init_ul = '1' then
+                            ctx.size_known <= rxd_q.known;
+                            ctx.ind_size   <= resize(unsigned(rx_data_q(63 downto 32)), cnt_w_c);
                         end if;
 
-                        if rxd.empty = '1' then
+                        if rxd_q.empty = '1' then
                             ctx.empty_cnt <= ctx.empty_cnt + 1;
                         end if;
 
-                        if rxd.abort = '1' or rxd.dl_seg = '1' or rxd.ul_seg = '1' then
+                        if rxd_q.abort = '1' or rxd_q.dl_seg = '1' or rxd_q.ul_seg = '1' then
                             rx_item_reply <= '1';
                         end if;
                     end if;
@@ -1681,7 +1644,7 @@ begin
                     -- timer sweep: expires at the (timeout + 1)-th ms tick after the last
                     -- reload (tmo_ms is never 0)
                     if ev = EV_TICK then
-                        if ctx.tmo_cnt = 0 then
+                        if tmo_zero_q = '1' then
                             tmo_exp := true;
                         else
                             ctx.tmo_cnt <= ctx.tmo_cnt - 1;

@@ -11,7 +11,10 @@
 --   omni_engine), the saturating event counters (error and statistics counters stop at all
 --   ones instead of wrapping, so a host never sees a small count after a flood), the OR
 --   reduction (VHDL-93 has no unary `or v`), frame-byte masking by DLC, and the elaboration
---   arithmetic on generics (ceiling log2, ns to clock cycles, the larger of two naturals).
+--   arithmetic on generics (ceiling log2, ns to clock cycles, the larger of two naturals),
+--   counters and compares split in halves (lt_split, inc_split). Also the byte-lane helpers of
+--   the SDO buffer (word_byte, from_lanes, first_bytes): one user, here to keep
+--   canopen_sdo_channels.vhd within the 2 000-line file limit of the style check.
 -- =================================================================================================
 
 library ieee;
@@ -53,6 +56,21 @@ package canopen_util_pkg is
     -- zero; a DLC of 9..15 means 8 bytes
 
     function keep_bytes (v : std_logic_vector(63 downto 0); dlc : std_logic_vector(3 downto 0))
+        return std_logic_vector;
+
+    -- byte j (0..3) of a 32-bit word
+
+    function word_byte (v : std_logic_vector(31 downto 0); j : unsigned(1 downto 0))
+        return std_logic_vector;
+
+    -- lane outputs read at byte address a (lane k holds byte 4w+k) -> bytes a..a+3 in order
+
+    function from_lanes (v : std_logic_vector(31 downto 0); lo : unsigned(1 downto 0))
+        return std_logic_vector;
+
+    -- the first n (0..7) bytes of a 7-byte vector, the others zero (keep_bytes)
+
+    function first_bytes (v : std_logic_vector(55 downto 0); n : unsigned(3 downto 0))
         return std_logic_vector;
 
     -- smallest r with 2**r >= n
@@ -201,6 +219,70 @@ package body canopen_util_pkg is
         return r;
 
     end function keep_bytes;
+
+    function word_byte (v : std_logic_vector(31 downto 0); j : unsigned(1 downto 0))
+        return std_logic_vector is
+    begin
+
+        case j is
+
+            when "00" =>
+
+                return v(7 downto 0);
+
+            when "01" =>
+
+                return v(15 downto 8);
+
+            when "10" =>
+
+                return v(23 downto 16);
+
+            when others =>
+
+                return v(31 downto 24);
+
+        end case;
+
+    end function word_byte;
+
+    function from_lanes (v : std_logic_vector(31 downto 0); lo : unsigned(1 downto 0))
+        return std_logic_vector is
+    begin
+
+        case lo is
+
+            when "00" =>
+
+                return v;
+
+            when "01" =>
+
+                return v(7 downto 0) & v(31 downto 8);
+
+            when "10" =>
+
+                return v(15 downto 0) & v(31 downto 16);
+
+            when others =>
+
+                return v(23 downto 0) & v(31 downto 24);
+
+        end case;
+
+    end function from_lanes;
+
+    function first_bytes (v : std_logic_vector(55 downto 0); n : unsigned(3 downto 0))
+        return std_logic_vector is
+
+        variable r : std_logic_vector(63 downto 0);
+
+    begin
+
+        r := keep_bytes(x"00" & v, std_logic_vector(n));
+        return r(55 downto 0);
+
+    end function first_bytes;
 
     function clog2 (n : positive) return natural is
 
