@@ -408,7 +408,10 @@ architecture rtl of omni_engine is
     signal c_reply : std_logic;
     signal c_param : std_logic;
     signal c_unexp : std_logic;
-    -- SEQ + 1 and LEN_ERR + 1 of the matched slot
+    -- SEQ and LEN_ERR of the matched slot, registered with the frame (SEQ changes only in
+    -- S_RX_MATCH; a counter clear at the hand-over edge is applied to the copy too); + 1
+    signal m_seq       : unsigned(15 downto 0);
+    signal m_len       : unsigned(15 downto 0);
     signal rx_seq_next : unsigned(15 downto 0);
     signal rx_len_next : unsigned(15 downto 0);
     -- strobes
@@ -677,14 +680,12 @@ begin
 
     end process slot_match_proc;
 
-    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_rep_any, master_id, rx_dlc_q, rx_id_q,
-                          rx_rtr_q, rx_st, s_dlc, s_len, s_seq) is
+    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_len, m_rep_any, m_seq, master_id,
+                          rx_dlc_q, rx_id_q, rx_rtr_q, rx_st, s_dlc) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
         variable pd_v   : boolean;
-        variable seq_v  : unsigned(15 downto 0);
-        variable len_v  : unsigned(15 downto 0);
 
     begin
 
@@ -730,20 +731,8 @@ begin
             end if;
         end if;
 
-        seq_v := (others => '0');
-        len_v := (others => '0');
-
-        for k in 0 to N_SLOTS - 1 loop
-
-            if m_fb_idx = k then
-                seq_v := s_seq(k);
-                len_v := s_len(k);
-            end if;
-
-        end loop;
-
-        rx_seq_next <= seq_v + 1;
-        rx_len_next <= sat_inc(len_v);
+        rx_seq_next <= m_seq + 1;
+        rx_len_next <= sat_inc(m_len);
 
     end process match_proc;
 
@@ -879,6 +868,8 @@ begin
             rx_st      <= S_RX_IDLE;
             m_fb_any   <= '0';
             m_fb_idx   <= 0;
+            m_seq      <= (others => '0');
+            m_len      <= (others => '0');
             m_rep_any  <= '0';
             m_rep_idx  <= 0;
             rx_done_q  <= '0';
@@ -1127,9 +1118,14 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        rx_st     <= S_RX_MATCH;
-                        m_fb_any  <= mi_fb_any;
-                        m_fb_idx  <= mi_fb_idx;
+                        rx_st    <= S_RX_MATCH;
+                        m_fb_any <= mi_fb_any;
+                        m_fb_idx <= mi_fb_idx;
+                        m_seq    <= s_seq(mi_fb_idx);
+                        m_len    <= s_len(mi_fb_idx);
+                        if clr = '1' then
+                            m_len <= (others => '0');
+                        end if;
                         m_rep_any <= mi_rep_any;
                         m_rep_idx <= mi_rep_idx;
                     end if;
