@@ -660,7 +660,7 @@ package canopen_regs_pkg is
     -- OMNI_SLOT_ERR
     constant OMNI_SLOT_ERR_LEN_ERR_HI_C : natural := 15; -- RO
     constant OMNI_SLOT_ERR_LEN_ERR_LO_C : natural := 0;
-    constant OMNI_SLOT_ERR_MISSED_HI_C  : natural := 31; -- RO: cycles without feedback (saturates)
+    constant OMNI_SLOT_ERR_MISSED_HI_C  : natural := 31; -- RO
     constant OMNI_SLOT_ERR_MISSED_LO_C  : natural := 16;
 
     -- OMNI_FB_NEW

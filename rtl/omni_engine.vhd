@@ -183,6 +183,10 @@ architecture rtl of omni_engine is
 
     type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
 
+    -- MISSED increments not yet added to the RAM word, per slot
+
+    type u2_arr_t is array (natural range <>) of unsigned(1 downto 0);
+
     type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** inc_w_c - 1;
 
     type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
@@ -348,10 +352,36 @@ architecture rtl of omni_engine is
     signal s_new : std_logic_vector(N_SLOTS - 1 downto 0);
     signal s_ok  : std_logic_vector(N_SLOTS - 1 downto 0);
     signal s_got : std_logic_vector(N_SLOTS - 1 downto 0);
-    -- sequence, length errors, missed cycles
-    signal s_seq  : u16_arr_t(0 to N_SLOTS - 1);
-    signal s_len  : u16_arr_t(0 to N_SLOTS - 1);
-    signal s_miss : u16_arr_t(0 to N_SLOTS - 1);
+    -- slot counters SEQ, LEN_ERR, MISSED in block RAM, one word per slot (section "Slot
+    -- counters"): a field reads 0 until written after a reset (SEQ: s_ok) or a CLR_COUNTERS
+    -- (LEN_ERR, MISSED: *_stale)
+    signal len_stale  : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal miss_stale : std_logic_vector(N_SLOTS - 1 downto 0);
+    -- engine copy: written by the match cycle (SEQ / LEN_ERR) or the MISSED sweep, read at a
+    -- frame's hand-over (sc_hand) or by the sweep
+    signal sc_hand : std_logic;
+    signal sc_mwe  : std_logic;
+    signal sc_we   : std_logic;
+    signal sc_wa   : natural range 0 to N_SLOTS - 1;
+    signal sc_wd   : std_logic_vector(47 downto 0);
+    signal sc_ra   : natural range 0 to N_SLOTS - 1;
+    signal sc_q    : std_logic_vector(47 downto 0);
+    -- host copy (LEN_ERR and MISSED) read at the selection
+    signal hc_q  : std_logic_vector(31 downto 0);
+    signal hl_ok : std_logic;
+    signal hm_ok : std_logic;
+    -- MISSED: cycles missed by a slot and not yet added (0..3); the sweep that adds them (slot,
+    -- phase 0 read / 1 write; it waits while the match uses the port) and its write
+    signal miss_ev   : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal miss_pend : u2_arr_t(0 to N_SLOTS - 1);
+    signal sw_slot   : natural range 0 to N_SLOTS - 1;
+    signal sw_ph     : std_logic;
+    signal sw_free   : std_logic;
+    signal sw_we     : std_logic;
+    signal sw_miss   : std_logic_vector(15 downto 0);
+    -- the host's selected slot as of the next edge
+    signal hsel_next : natural range 0 to 7;
+    signal hsel_ra   : natural range 0 to N_SLOTS - 1;
     -- query: replies of the last query, sticky missing
     signal alive   : std_logic_vector(N_SLOTS - 1 downto 0);
     signal missing : std_logic_vector(N_SLOTS - 1 downto 0);
@@ -408,8 +438,10 @@ architecture rtl of omni_engine is
     signal c_reply : std_logic;
     signal c_param : std_logic;
     signal c_unexp : std_logic;
-    -- SEQ and LEN_ERR of the matched slot, registered with the frame (SEQ changes only in
-    -- S_RX_MATCH; a counter clear at the hand-over edge is applied to the copy too); + 1
+    -- SEQ and LEN_ERR of the matched slot: read from the RAM at the hand-over edge, with the
+    -- word's validity registered at that edge (a counter clear at that edge included); + 1
+    signal m_seq_ok    : std_logic;
+    signal m_len_ok    : std_logic;
     signal m_seq       : unsigned(15 downto 0);
     signal m_len       : unsigned(15 downto 0);
     signal rx_seq_next : unsigned(15 downto 0);
@@ -851,9 +883,7 @@ begin
             s_new      <= (others => '0');
             s_ok       <= (others => '0');
             s_got      <= (others => '0');
-            s_seq      <= (others => (others => '0'));
-            s_len      <= (others => (others => '0'));
-            s_miss     <= (others => (others => '0'));
+            miss_ev    <= (others => '0');
             alive      <= (others => '0');
             missing    <= (others => '0');
             q_open     <= '0';
@@ -868,8 +898,6 @@ begin
             rx_st      <= S_RX_IDLE;
             m_fb_any   <= '0';
             m_fb_idx   <= 0;
-            m_seq      <= (others => '0');
-            m_len      <= (others => '0');
             m_rep_any  <= '0';
             m_rep_idx  <= 0;
             rx_done_q  <= '0';
@@ -1118,14 +1146,9 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        rx_st    <= S_RX_MATCH;
-                        m_fb_any <= mi_fb_any;
-                        m_fb_idx <= mi_fb_idx;
-                        m_seq    <= s_seq(mi_fb_idx);
-                        m_len    <= s_len(mi_fb_idx);
-                        if clr = '1' then
-                            m_len <= (others => '0');
-                        end if;
+                        rx_st     <= S_RX_MATCH;
+                        m_fb_any  <= mi_fb_any;
+                        m_fb_idx  <= mi_fb_idx;
                         m_rep_any <= mi_rep_any;
                         m_rep_idx <= mi_rep_idx;
                     end if;
@@ -1193,6 +1216,11 @@ begin
 
             -- ------------------------------------------------------------------- node table
             inc_v(cnt_miss_c) := ones(miss_v);
+            -- per-slot MISSED: to the slot counter sweep (a clear drops its own cycle's events)
+            miss_ev <= miss_v;
+            if clr = '1' then
+                miss_ev <= (others => '0');
+            end if;
 
             if wr_sel = '1' then
                 w_slot   := to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto
@@ -1235,18 +1263,6 @@ begin
                     s_got(k) <= '1';
                 end if;
 
-                if clr = '1' then
-                    s_miss(k) <= (others => '0');
-                elsif miss_v(k) = '1' then
-                    s_miss(k) <= sat_inc(s_miss(k));
-                end if;
-
-                if clr = '1' then
-                    s_len(k) <= (others => '0');
-                elsif c_len = '1' and m_fb_idx = k then
-                    s_len(k) <= rx_len_next;
-                end if;
-
                 -- NEW: OMNI_SEL.ACK with the selection or OMNI_FB_NEW written 1, then reception
                 if (wr_sel = '1' and reg_wdata_i(OMNI_SEL_ACK_C) = '1'
                     and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)) = k)
@@ -1255,9 +1271,8 @@ begin
                 end if;
 
                 if c_store = '1' and m_fb_idx = k then
-                    s_seq(k) <= rx_seq_next;
-                    s_ok(k)  <= '1';
-                    new_v    := '1';
+                    s_ok(k) <= '1';
+                    new_v   := '1';
                 end if;
 
                 s_new(k) <= new_v;
@@ -1412,6 +1427,149 @@ begin
     end process fram_proc;
 
     -- ---------------------------------------------------------------------------------------------
+    -- Slot counters: SEQ, LEN_ERR and MISSED of every slot in block RAM (docs/omni_engine.md)
+    -- ---------------------------------------------------------------------------------------------
+    -- word layout: SEQ 15..0, LEN_ERR 31..16, MISSED 47..32. The match cycle writes the
+    -- matched slot's word (a stored frame SEQ + 1, a length error LEN_ERR + 1 saturating;
+    -- MISSED as read at the hand-over), the sweep a slot's MISSED + its pending count (SEQ and
+    -- LEN_ERR as read by the sweep); the sweep keeps off the port in the hand-over and match
+    -- cycles, so neither write loses the other's fields
+    sc_hand <= '1' when rx_st = S_RX_IDLE and rx_valid_i = '1' else
+               '0';
+    sc_mwe  <= c_store or c_len;
+    sw_free <= not (sc_hand or sc_mwe);
+    sw_we   <= '1' when sw_ph = '1' and sw_free = '1' and miss_pend(sw_slot) /= 0 else
+               '0';
+    sw_miss <= std_logic_vector(sat_add(unsigned(sc_q(47 downto 32))
+                                        and (15 downto 0 => not miss_stale(sw_slot)),
+                                        to_integer(miss_pend(sw_slot))));
+
+    sc_we <= sc_mwe or sw_we;
+    sc_wa <= m_fb_idx when sc_mwe = '1' else
+             sw_slot;
+    sc_wd <= sc_q(47 downto 32) & std_logic_vector(m_len) & std_logic_vector(rx_seq_next)
+             when c_store = '1' else
+             sc_q(47 downto 32) & std_logic_vector(rx_len_next) & std_logic_vector(m_seq)
+             when c_len = '1' else
+             sw_miss & sc_q(31 downto 0);
+    sc_ra <= mi_fb_idx when sc_hand = '1' else
+             sw_slot;
+
+    -- the match cycle works on the word read at the hand-over edge
+    m_seq <= unsigned(sc_q(15 downto 0)) when m_seq_ok = '1' else
+             (others => '0');
+    m_len <= unsigned(sc_q(31 downto 16)) when m_len_ok = '1' else
+             (others => '0');
+
+    sc_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => N_SLOTS,
+            WIDTH => 48
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => sc_we,
+            waddr_i => sc_wa,
+            wdata_i => sc_wd,
+            re_i    => '1',
+            raddr_i => sc_ra,
+            rdata_o => sc_q
+        );
+
+    -- the host's selection as of the next edge (a slot number >= N_SLOTS reads 0)
+    hsel_next <= to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)))
+                 when wr_sel = '1' else
+                 sel_slot;
+    hsel_ra   <= hsel_next when hsel_next < N_SLOTS else
+                 0;
+
+    hc_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => N_SLOTS,
+            WIDTH => 32
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => sc_we,
+            waddr_i => sc_wa,
+            wdata_i => sc_wd(47 downto 16),
+            re_i    => '1',
+            raddr_i => hsel_ra,
+            rdata_o => hc_q
+        );
+
+    slot_cnt_proc : process (clk_i, rst_n_i) is
+
+        variable p_v : unsigned(1 downto 0);
+
+    begin
+
+        if rst_n_i = '0' then
+            len_stale  <= (others => '1');
+            miss_stale <= (others => '1');
+            miss_pend  <= (others => (others => '0'));
+            sw_slot    <= 0;
+            sw_ph      <= '0';
+            m_seq_ok   <= '0';
+            m_len_ok   <= '0';
+            hl_ok      <= '0';
+            hm_ok      <= '0';
+        elsif rising_edge(clk_i) then
+            -- validity of the words read at this edge (as before this edge's writes)
+            if sc_hand = '1' then
+                m_seq_ok <= s_ok(mi_fb_idx);
+                m_len_ok <= not (len_stale(mi_fb_idx) or clr);
+            end if;
+            hl_ok <= '0';
+            hm_ok <= '0';
+            if hsel_next < N_SLOTS then
+                hl_ok <= not len_stale(hsel_ra);
+                hm_ok <= not miss_stale(hsel_ra);
+            end if;
+
+            -- sweep: phase 0 reads sw_slot, phase 1 writes it and moves on; a cycle in which
+            -- the match uses the port sends it back to phase 0 (read again)
+            sw_ph <= '0';
+            if sw_free = '1' then
+                sw_ph <= not sw_ph;
+                if sw_ph = '1' then
+                    if sw_slot = N_SLOTS - 1 then
+                        sw_slot <= 0;
+                    else
+                        sw_slot <= sw_slot + 1;
+                    end if;
+                end if;
+            end if;
+
+            for k in 0 to N_SLOTS - 1 loop
+
+                if sc_mwe = '1' and m_fb_idx = k then
+                    len_stale(k) <= '0';
+                end if;
+
+                p_v := miss_pend(k);
+                if sw_we = '1' and sw_slot = k then
+                    miss_stale(k) <= '0';
+                    p_v           := (others => '0');
+                end if;
+                if miss_ev(k) = '1' and p_v /= 3 then
+                    p_v := p_v + 1;
+                end if;
+                miss_pend(k) <= p_v;
+
+                if clr = '1' then
+                    len_stale(k)  <= '1';
+                    miss_stale(k) <= '1';
+                    miss_pend(k)  <= (others => '0');
+                end if;
+
+            end loop;
+
+        end if;
+
+    end process slot_cnt_proc;
+
+    -- ---------------------------------------------------------------------------------------------
     -- Feasibility: worst-case bits of one cycle against the period (omni_feasibility)
     -- ---------------------------------------------------------------------------------------------
 
@@ -1441,12 +1599,12 @@ begin
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
     read_mux_proc : process (alive, bc4x2, cfg_err, cyc_cnt, enable_i, f_bits, feasible, fr_q,
-                             k_reg, m_reg, master_id, missing, n_axes, nmt_due, par_dlc, par_due,
-                             par_hi, par_lo, par_node, par_type, pending, pmb_any, pmb_dlc, pmb_hi,
-                             pmb_lo, pmb_new, pmb_ovr, pmb_sender, pmb_type, q_open, qwin_reg,
-                             reg_addr_i, s_dlc, s_fc, s_len, s_miss, s_new, s_node, s_valid,
-                             sel_slot, sender, snap_new, snap_ok, staging, stop_due, stop_miss,
-                             sync_mode) is
+                             hc_q, hl_ok, hm_ok, k_reg, m_reg, master_id, missing, n_axes,
+                             nmt_due, par_dlc, par_due, par_hi, par_lo, par_node, par_type, pending,
+                             pmb_any, pmb_dlc, pmb_hi, pmb_lo, pmb_new, pmb_ovr, pmb_sender,
+                             pmb_type, q_open, qwin_reg, reg_addr_i, s_dlc, s_fc, s_new, s_node,
+                             s_valid, sel_slot, sender, snap_new, snap_ok, staging, stop_due,
+                             stop_miss, sync_mode) is
 
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);
@@ -1522,14 +1680,16 @@ begin
                     or at(s_fc(k), OMNI_SLOT_CFG_FC_HI_C, OMNI_SLOT_CFG_FC_LO_C)
                     or at(s_valid(k), OMNI_SLOT_CFG_VALID_C)
                     or at(s_dlc(k), OMNI_SLOT_CFG_DLC_HI_C, OMNI_SLOT_CFG_DLC_LO_C));
-                put(off_serr_c,
-                    at(std_logic_vector(s_len(k)), OMNI_SLOT_ERR_LEN_ERR_HI_C,
-                          OMNI_SLOT_ERR_LEN_ERR_LO_C)
-                    or at(std_logic_vector(s_miss(k)), OMNI_SLOT_ERR_MISSED_HI_C,
-                             OMNI_SLOT_ERR_MISSED_LO_C));
             end if;
 
         end loop;
+
+        -- the slot counters' host copies (read at the selection, 0 for no slot or a stale word)
+        put(off_serr_c,
+            at(hc_q(15 downto 0) and (15 downto 0 => hl_ok), OMNI_SLOT_ERR_LEN_ERR_HI_C,
+               OMNI_SLOT_ERR_LEN_ERR_LO_C)
+            or at(hc_q(31 downto 16) and (15 downto 0 => hm_ok), OMNI_SLOT_ERR_MISSED_HI_C,
+                  OMNI_SLOT_ERR_MISSED_LO_C));
 
         -- the snapshot of the selected slot (sel_slot < N_SLOTS when snap_ok = 1)
         if snap_ok = '1' then

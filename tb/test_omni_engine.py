@@ -49,6 +49,15 @@ RX_BOUND_QUERY = 6
 #: counter read lag (docs/omni_engine.md): an event counted at edge e shows in every read with
 #: the address on reg_addr_i CNT_LAG cycles later (amounts registered: 1, bank: S + 3, S = 9)
 CNT_LAG = 13
+
+
+def slot_lag(n_slots: int) -> int:
+    """Slot counter read lag (docs/omni_engine.md): a missed cycle closed at edge e shows in
+    OMNI_SLOT_ERR.MISSED in every read with the address on reg_addr_i slot_lag cycles later
+    (the MISSED sweep visits a slot every 2 * N_SLOTS cycles; + 3 for pending count, host copy
+    and read register)."""
+    return 2 * n_slots + 3
+
 #: frame builder (docs/omni_engine.md): the cycle frame of a COMMIT or OMNI_CFG write at edge e
 #: is on cyc_* from edge e + BUILD_CYCLES on; a take before sends the previous frame and keeps
 #: PENDING
@@ -160,6 +169,8 @@ class TB:
         if name.startswith("OMNI_CNT_"):
             # counter bank read lag: an event of cycle e shows in reads from cycle e + CNT_LAG
             await ClockCycles(dut.clk_i, CNT_LAG, rising=False)
+        elif name == "OMNI_SLOT_ERR":
+            await ClockCycles(dut.clk_i, slot_lag(self.n_slots), rising=False)
         await FallingEdge(dut.clk_i)
         dut.reg_addr_i.value = off(name)
         await RisingEdge(dut.clk_i)
@@ -923,7 +934,8 @@ async def read_every_cycle(tb: TB, name: str, cycles: int) -> list[int]:
 @cocotb.test(timeout_time=20, timeout_unit="ms")
 async def run_counter_read_lag(dut):
     """Purpose: the counters in the counter bank keep every event and show it within the
-    documented read lag (CNT_LAG cycles); a clear reads 0 from the next cycle.
+    documented read lag (CNT_LAG cycles); a clear reads 0 from the next cycle; a slot's
+    MISSED shows within slot_lag cycles.
 
     Verifies: per unexpected frame (counted at the edge after rx_done_o's), reads in every
     cycle: never decreasing, the new count at the latest CNT_LAG cycles after the counting edge
@@ -940,15 +952,72 @@ async def run_counter_read_lag(dut):
         assert all(a <= b for a, b in zip(vals, vals[1:])), vals
         assert vals[0] >= last and vals[CNT_LAG - 1] == n and vals[-1] == n, (n, vals)
         last = n
-    # cycle 0 not checked, cycle 1: every slot missed at the second cycle_i
+    # cycle 0 not checked, cycle 1: every slot missed at the second cycle_i; the per-slot
+    # MISSED of the last slot (selected) from the closing edge on: 0 until it shows, then 1,
+    # at the latest slot_lag cycles after the closing edge
+    lag = slot_lag(tb.n_slots)
+    await tb.write("OMNI_SEL", tb.n_slots - 1)
     await tb.cycle()
-    await tb.cycle()
+    await tb.take()
+    await tb.fire()
+    vals = [R.get_field("OMNI_SLOT_ERR", "MISSED", v)
+            for v in await read_every_cycle(tb, "OMNI_SLOT_ERR", lag + 2)]
+    assert vals[lag - 1:] == [1] * 3 and set(vals) == {0, 1}, vals
+    assert vals == sorted(vals), vals
     vals = await read_every_cycle(tb, "OMNI_CNT_MISSED", CNT_LAG + 2)
     assert vals[-1] == tb.n_slots, vals
     await tb.write("OMNI_CTRL", R.OMNI_CTRL_CLR_COUNTERS)
+    # the slot counters read 0 from the second read after the clear (their valid flags are
+    # registered with the host copy's read)
+    assert (await read_every_cycle(tb, "OMNI_SLOT_ERR", 3))[1:] == [0, 0]
     vals = await read_every_cycle(tb, "OMNI_CNT_MISSED", CNT_LAG + 2)
     assert vals == [0] * (CNT_LAG + 2), vals
     assert (await read_every_cycle(tb, "OMNI_CNT_UNEXPECTED", 1)) == [0]
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_slot_counters_sweep_and_match(dut):
+    """Purpose: the slot counters share one RAM word per slot between the match cycle (SEQ,
+    LEN_ERR) and the MISSED sweep; neither write may lose or mix up the other's update.
+
+    Verifies: slave 1 sends a frame of the wrong length in every cycle (so its MISSED is
+    pending in every cycle), slave 2 a good one every third cycle, slave 3 every other cycle,
+    slave 4 in every cycle; slave 1's frame comes 0 .. 4 * N_SLOTS + 3 cycles after each
+    cycle_i, so its hand-over and match cycle fall on every phase of the sweep, including the
+    sweep's write of slot 1. Per slot: MISSED = checked cycles without a good frame (all
+    different), SEQ = good frames, LEN_ERR = wrong-length frames; OMNI_CNT_MISSED = the sum.
+    """
+    tb = TB(dut)
+    await tb.start()
+    await tb.configure(n_axes=1, slots=PLATFORM_SLOTS)
+    await tb.cycle()  # the first cycle_i is not checked
+    offsets = range(4 * tb.n_slots + 4)
+    good = {k: 0 for k in range(4)}
+    wrong = {k: 0 for k in range(4)}
+    for n, off_cycles in enumerate(offsets):
+        await tb.take()
+        await tb.fire()
+        await ClockCycles(dut.clk_i, off_cycles, rising=False)
+        plan = {0: "wrong", 1: "good" if n % 3 == 0 else None, 2: "good" if n % 2 else None,
+                3: "good"}
+        for k, kind in plan.items():
+            if kind is None:
+                continue
+            await tb.rx(feedback(SLAVES[k], n, dlc=4 if kind == "wrong" else 6))
+            (good if kind == "good" else wrong)[k] += 1
+    await tb.take()
+    await tb.fire()
+    checked = len(offsets) + 1
+    missed = {k: checked - good[k] for k in range(4)}
+    assert len(set(missed.values())) == 4, missed
+    for k in range(4):
+        await tb.write("OMNI_SEL", k)
+        word = await tb.read("OMNI_SLOT_ERR")
+        err = {f: R.get_field("OMNI_SLOT_ERR", f, word) for f in ("MISSED", "LEN_ERR")}
+        assert err == {"MISSED": missed[k], "LEN_ERR": wrong[k]}, (k, err, missed, wrong)
+        info = await tb.read("OMNI_FB_INFO")
+        assert R.get_field("OMNI_FB_INFO", "SEQ", info) == good[k], (k, good)
+    assert await tb.read("OMNI_CNT_MISSED") == sum(missed.values())
 
 
 @cocotb.test(timeout_time=10, timeout_unit="ms")
