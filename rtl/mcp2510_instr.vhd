@@ -17,6 +17,10 @@
 --   frame carries (0 for a remote frame, else DLC, at most 8), so a short frame costs fewer SPI
 --   bytes. The transaction ends through the engine's tx_end_i, without a dummy byte.
 --   The block knows the MCP2510 framing, not what the registers mean.
+--   cmd_wdata_i is read byte by byte during the transaction, not copied: the caller holds it
+--   from the accept (cmd_valid_i with cmd_ready_o) until rsp_valid_o (mcp2510_ctrl builds it
+--   from its state and frame registers, which do not change before the response). A
+--   simulation-only check (translate_off) reports a change.
 -- =================================================================================================
 
 library ieee;
@@ -45,7 +49,8 @@ entity mcp2510_instr is
         cmd_addr_i  : in    std_logic_vector(7 downto 0);   -- register address
         cmd_len_i   : in    std_logic_vector(3 downto 0);   -- data bytes (0..14)
         cmd_rxbuf_i : in    std_logic;                      -- READ of an RX buffer: DLC-limited
-        cmd_wdata_i : in    std_logic_vector(111 downto 0); -- write bytes, byte k = 8k+7..8k
+        cmd_wdata_i : in    std_logic_vector(111 downto 0); -- write bytes, byte k = 8k+7..8k,
+        -- held until rsp_valid_o
         -- response
         rsp_valid_o : out   std_logic;                      -- strobe: command done
         rsp_rdata_o : out   std_logic_vector(111 downto 0); -- bytes read in the data phase
@@ -69,7 +74,6 @@ architecture rtl of mcp2510_instr is
     -- latched command
     signal instr      : std_logic_vector(7 downto 0);
     signal addr       : std_logic_vector(7 downto 0);
-    signal wdata      : std_logic_vector(111 downto 0);
     signal rxbuf_mode : std_logic;
     -- 1 or 2 header bytes (instruction [+ address])
     signal hdr_len : natural range 1 to 2;
@@ -140,7 +144,9 @@ begin
     eng_tx_valid <= '1' when active = '1' and tx_idx < total else '0';
     eng_tx_last  <= '1' when total_known = '1' and tx_idx = total - 1 else '0';
 
-    tx_byte_proc : process (addr, hdr_len, instr, tx_idx, wdata) is
+    -- the write bytes are taken from cmd_wdata_i as the transaction goes (no copy here: the
+    -- caller holds cmd_wdata_i from the accept until rsp_valid_o)
+    tx_byte_proc : process (addr, cmd_wdata_i, hdr_len, instr, tx_idx) is
 
         variable k : natural range 0 to 13;
 
@@ -152,7 +158,7 @@ begin
             eng_tx_data <= addr;
         elsif instr = MCP_INSTR_WRITE_C or instr = MCP_INSTR_BIT_MODIFY_C then
             k           := (tx_idx - hdr_len) mod 14;
-            eng_tx_data <= wdata(8 * k + 7 downto 8 * k);
+            eng_tx_data <= cmd_wdata_i(8 * k + 7 downto 8 * k);
         else
             eng_tx_data <= x"00";  -- dummy byte while reading
         end if;
@@ -184,7 +190,6 @@ begin
                 if cmd_valid_i = '1' then
                     instr      <= cmd_instr_i;
                     addr       <= cmd_addr_i;
-                    wdata      <= cmd_wdata_i;
                     rxbuf_mode <= cmd_rxbuf_i;
                     hdr_len    <= header_length(cmd_instr_i);
                     tx_idx     <= 0;
@@ -236,6 +241,28 @@ begin
 
     rsp_rdata_o <= rdata;
     cmd_ready_o <= not active;
+
+    -- simulation only: cmd_wdata_i must not change while a command runs
+    -- pragma translate_off
+    hold_check_proc : process (clk_i) is
+
+        variable held : std_logic_vector(111 downto 0);
+
+    begin
+
+        if rising_edge(clk_i) then
+            if active = '0' and cmd_valid_i = '1' then
+                held := cmd_wdata_i;
+            elsif active = '1' then
+                assert cmd_wdata_i = held
+                    report "mcp2510_instr: cmd_wdata_i changed during a command"
+                    severity failure;
+            end if;
+        end if;
+
+    end process hold_check_proc;
+
+    -- pragma translate_on
 
     -- SPI engine --------------------------------------------------------------------------------
     spi_inst : entity work.mcp2510_spi_master
