@@ -75,7 +75,8 @@ entity canopen_pdo_engine is
         reg_we_i    : in    std_logic;                     -- write reg_wdata_i
         reg_wdata_i : in    std_logic_vector(31 downto 0); -- write data
         reg_rdata_o : out   std_logic_vector(31 downto 0); -- word at reg_addr_i, 1 cycle later
-        -- received frame (from the FSM, St5)
+        -- received frame (from the FSM, St5): rx_id_i .. rx_data_i are read where they are,
+        -- not copied: the caller holds them from rx_valid_i until rx_done_o
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
         rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
         rx_rtr_i        : in    std_logic;                     -- remote frame
@@ -333,8 +334,6 @@ architecture rtl of canopen_pdo_engine is
     -- operation chosen in E_IDLE and the engine's read address
     signal e_gop : eng_op_t;
     signal e_ra  : natural range 0 to n_items_c - 1;
-    -- the frame the receive match would start with is a remote frame
-    signal rx_rtr_now : std_logic;
     -- results of the item at the RAM outputs (E_EXEC / E_MATCH)
     signal x_we    : std_logic;                             -- state word written back
     signal x_wd    : std_logic_vector(sw_w_c - 1 downto 0); -- the word
@@ -465,11 +464,6 @@ architecture rtl of canopen_pdo_engine is
     -- Receiver
     -- ---------------------------------------------------------------------------------------------
     signal rx_st : rx_state_t;
-    -- registered frame
-    signal rx_id_q   : std_logic_vector(10 downto 0);
-    signal rx_rtr_q  : std_logic;
-    signal rx_dlc_q  : std_logic_vector(3 downto 0);
-    signal rx_data_q : std_logic_vector(63 downto 0);
     -- TPDO whose RTR reply is awaited
     signal rx_k : natural range 0 to N_TPDO - 1;
     -- the matched TPDO is not inhibited (the RTR reply can start now)
@@ -597,23 +591,12 @@ begin
     -- Engine arbiter: the operation started in E_IDLE and the read address of the RAMs A
     -- (priority: receive, TPDO taken, frame read, sweep)
     -- ---------------------------------------------------------------------------------------------
-    arb_proc : process (e_st, e_item, ini_busy, rx_st, rx_valid_i, rx_rtr_i, rx_rtr_q, tx_st, txi,
-                        sw_busy, sw_ptr) is
-
-        variable rtr_v : std_logic;
-
+    arb_proc : process (e_st, e_item, ini_busy, rx_st, rx_valid_i, rx_rtr_i, tx_st, txi, sw_busy,
+                        sw_ptr) is
     begin
 
         e_gop <= OP_NONE;
         e_ra  <= e_item;
-
-        if rx_st = S_RX_IDLE then
-            rtr_v := rx_rtr_i;
-        else
-            rtr_v := rx_rtr_q;
-        end if;
-
-        rx_rtr_now <= rtr_v;
 
         case e_st is
 
@@ -624,7 +607,7 @@ begin
                     null;
                 elsif (rx_st = S_RX_IDLE and rx_valid_i = '1') or rx_st = S_RX_WAIT then
                     e_gop <= OP_RX;
-                    if rtr_v = '1' then
+                    if rx_rtr_i = '1' then
                         e_ra <= 0;
                     else
                         e_ra <= N_TPDO;
@@ -658,7 +641,7 @@ begin
     -- Engine datapath: the item's words at the RAM outputs A, what the operation does with them
     -- ---------------------------------------------------------------------------------------------
     exec_proc : process (e_st, e_op, e_item, e_last, ca_q, sa_q, ini_busy, i_stale, i_sp, sync_i,
-                         t_due, t_ns, t_inh, t_latev, sw_tick, rx_id_q, rx_rtr_q, rx_dlc_q) is
+                         t_due, t_ns, t_inh, t_latev, sw_tick, rx_id_i, rx_rtr_i, rx_dlc_i) is
 
         variable w      : std_logic_vector(sw_w_c - 1 downto 0);
         variable tt_v   : unsigned(7 downto 0);
@@ -827,16 +810,16 @@ begin
             end case;
 
         elsif e_st = E_MATCH then
-            match := ca_q(cw_cob_hi_c downto cw_cob_lo_c) = rx_id_q and valid;
-            if rx_rtr_q = '1' then
+            match := ca_q(cw_cob_hi_c downto cw_cob_lo_c) = rx_id_i and valid;
+            if rx_rtr_i = '1' then
                 match := match and ca_q(cw_rtr_c) = '1';
             end if;
             if match then
                 x_match <= '1';
                 x_mdone <= '1';
-                if rx_rtr_q = '1' then
+                if rx_rtr_i = '1' then
                     x_rtr <= '1';
-                elsif ca_q(cw_dlc_hi_c downto cw_dlc_lo_c) = rx_dlc_q then
+                elsif ca_q(cw_dlc_hi_c downto cw_dlc_lo_c) = rx_dlc_i then
                     x_store                           <= '1';
                     x_we                              <= '1';
                     w(sw_seq_hi_c downto sw_seq_lo_c) := seq1_v;
@@ -959,7 +942,7 @@ begin
 
                     e_item <= e_ra;
                     e_op   <= e_gop;
-                    if rx_rtr_now = '1' then
+                    if rx_rtr_i = '1' then
                         e_last <= N_TPDO - 1;
                     else
                         e_last <= n_items_c - 1;
@@ -1219,7 +1202,7 @@ begin
     rr_we <= x_store;
     rr_wa <= e_item - N_TPDO when e_item >= N_TPDO else
              0;
-    rr_wd <= sync_count_i & x_tseq & keep_bytes(rx_data_q, rx_dlc_q);
+    rr_wd <= sync_count_i & x_tseq & keep_bytes(rx_data_i, rx_dlc_i);
     rr_re <= wr_sel and new_ok and reg_wdata_i(PDO_SEL_RPDO_C);
     rr_ra <= new_item - N_TPDO when new_item >= N_TPDO else
              0;
@@ -1595,20 +1578,27 @@ begin
 
     end process rx_proc;
 
-    -- received frame: datapath, qualified by rx_st (no reset)
-    rx_frame_proc : process (clk_i) is
+    -- simulation only: the received frame must not change from rx_valid_i until rx_done_o
+    -- pragma translate_off
+    rx_hold_check_proc : process (clk_i) is
+
+        variable held : std_logic_vector(79 downto 0);
+
     begin
 
         if rising_edge(clk_i) then
-            if rx_st = S_RX_IDLE and rx_valid_i = '1' then
-                rx_id_q   <= rx_id_i;
-                rx_rtr_q  <= rx_rtr_i;
-                rx_dlc_q  <= rx_dlc_i;
-                rx_data_q <= rx_data_i;
+            if rx_st = S_RX_IDLE then
+                held := rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i;
+            else
+                assert rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i = held
+                    report "canopen_pdo_engine: rx_*_i changed before rx_done_o"
+                    severity failure;
             end if;
         end if;
 
-    end process rx_frame_proc;
+    end process rx_hold_check_proc;
+
+    -- pragma translate_on
 
     -- ---------------------------------------------------------------------------------------------
     -- Per-channel flags

@@ -118,7 +118,8 @@ entity canopen_sdo_channels is
         wdr_req_o : out   std_logic;                     -- level: a withdraw is asked for
         wdr_id_o  : out   std_logic_vector(10 downto 0); -- its request COB-ID
         wdr_ack_i : in    std_logic;                     -- strobe: withdrawn (with wdr_req_o)
-        -- received frame (from the FSM, St6)
+        -- received frame (from the FSM, St6): rx_*_i are read where they are, not copied: the
+        -- caller holds them from rx_valid_i until rx_done_o
         rx_match_o      : out   std_logic;                     -- rx_id_i = a running response
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
         rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
@@ -485,12 +486,9 @@ architecture rtl of canopen_sdo_channels is
     signal rx_hit     : chan_vec_t;
     signal rx_hit_ch  : natural range 0 to N_SDO - 1;
     signal nohit_pipe : std_logic_vector(1 downto 0);
-    -- the frame waiting for the engine, for channel rx_ch
-    signal rx_pend   : std_logic;
-    signal rx_ch     : natural range 0 to N_SDO - 1;
-    signal rx_rtr_q  : std_logic;
-    signal rx_dlc_q  : std_logic_vector(3 downto 0);
-    signal rx_data_q : std_logic_vector(63 downto 0);
+    -- a frame (held on rx_*_i) waiting for the engine, for channel rx_ch
+    signal rx_pend : std_logic;
+    signal rx_ch   : natural range 0 to N_SDO - 1;
     -- rx strobes of the engine
     signal rx_done_q  : std_logic;
     signal rx_reply_q : std_logic;
@@ -1203,7 +1201,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Decision on the received frame for the loaded channel (applied by the engine in E_RUN)
     -- ---------------------------------------------------------------------------------------------
-    rx_dec_proc : process (ctx_rdata, rx_data_q, rx_dlc_q, rx_rtr_q, state) is
+    rx_dec_proc : process (ctx_rdata, rx_data_i, rx_dlc_i, rx_rtr_i, state) is
 
         variable d      : rxd_t;
         variable cmd    : std_logic_vector(7 downto 0);
@@ -1219,7 +1217,7 @@ begin
 
         d.unexp    := '0';
         d.abort    := '0';
-        d.code     := rx_data_q(63 downto 32);
+        d.code     := rx_data_i(63 downto 32);
         d.csel     := 0;
         d.wexp     := '0';
         d.ack_sz   := '0';
@@ -1232,7 +1230,7 @@ begin
         d.fin      := '0';
         d.wr_a     := (others => '0');
         d.wr_n     := (others => '0');
-        d.wr_d     := rx_data_q(63 downto 8);
+        d.wr_d     := rx_data_i(63 downto 8);
         d.pos      := c.pos;
         d.acked_up := '0';
         d.acked    := c.pos;
@@ -1241,18 +1239,18 @@ begin
         d.ind      := (others => '0');
         d.empty    := '0';
 
-        cmd    := rx_data_q(7 downto 0);
-        mux_ok := rx_data_q(31 downto 8) = c.sub & c.idx;
-        ind_v  := unsigned(rx_data_q(63 downto 32));
+        cmd    := rx_data_i(7 downto 0);
+        mux_ok := rx_data_i(31 downto 8) = c.sub & c.idx;
+        ind_v  := unsigned(rx_data_i(63 downto 32));
         cnt    := sdo_seg_bytes_c - resize(unsigned(cmd(sdo_n_hi_c downto sdo_seg_n_lo_c)), 4);
         total  := resize(c.pos, cnt_w_c + 1) + cnt;
 
         if (state /= S_DL_INIT_WAIT and state /= S_DL_SEG_WAIT and state /= S_UL_INIT_WAIT
-            and state /= S_UL_SEG_WAIT) or rx_rtr_q = '1' then
+            and state /= S_UL_SEG_WAIT) or rx_rtr_i = '1' then
             -- no response expected now, or a remote frame (a request, never a response): not
             -- ours
             d.unexp := '1';
-        elsif rx_dlc_q /= sdo_dlc_c then
+        elsif rx_dlc_i /= sdo_dlc_c then
             d.abort := '1';
             d.code  := SDO_ABORT_CS_C;
             d.csel  := 1;
@@ -1328,7 +1326,7 @@ begin
                         end if;
                         d.wr   := '1';
                         d.fin  := '1';
-                        d.wr_d := x"000000" & rx_data_q(63 downto 32);
+                        d.wr_d := x"000000" & rx_data_i(63 downto 32);
                         d.wexp := '1';
                         d.pos  := resize(d.wr_n, cnt_w_c);
                     elsif cmd(sdo_s_bit_c) = '1' and ind_v > BUF_BYTES then
@@ -1576,14 +1574,14 @@ begin
 
                         if rxd_q.abort = '1' then
                             do_abort := true;
-                            abort_v  := abort_code_of(rxd_q.csel, rx_data_q(63 downto 32));
+                            abort_v  := abort_code_of(rxd_q.csel, rx_data_i(63 downto 32));
                         end if;
 
                         if rxd_q.srv = '1' then
                             -- server abort: the transfer ends with its code, no frame
                             do_end   := true;
                             end_err  := '1';
-                            end_code := rx_data_q(63 downto 32);
+                            end_code := rx_data_i(63 downto 32);
                             end_sent := '0';
                         end if;
 
@@ -1614,10 +1612,10 @@ begin
                             wr_cnt <= rxd_q.wr_n;
                             if rxd_q.wexp = '1' then
                                 wr_addr <= (others => '0');
-                                wr_data <= x"000000" & rx_data_q(63 downto 32);
+                                wr_data <= x"000000" & rx_data_i(63 downto 32);
                             else
                                 wr_addr <= ctx.pos(addr_w_c - 1 downto 0);
-                                wr_data <= rx_data_q(63 downto 8);
+                                wr_data <= rx_data_i(63 downto 8);
                             end if;
                             ctx.pos <= rxd_q.pos;
                         end if;
@@ -1629,7 +1627,7 @@ begin
 
                         if rxd_q.init_ul = '1' then
                             ctx.size_known <= rxd_q.known;
-                            ctx.ind_size   <= resize(unsigned(rx_data_q(63 downto 32)), cnt_w_c);
+                            ctx.ind_size   <= resize(unsigned(rx_data_i(63 downto 32)), cnt_w_c);
                         end if;
 
                         if rxd_q.empty = '1' then
@@ -1856,11 +1854,8 @@ begin
 
             -- receive: capture last, so that a frame arriving as one is finished is kept --------
             if rx_valid_i = '1' and or_reduce(rx_hit) = '1' then
-                rx_pend   <= '1';
-                rx_ch     <= rx_hit_ch;
-                rx_rtr_q  <= rx_rtr_i;
-                rx_dlc_q  <= rx_dlc_i;
-                rx_data_q <= rx_data_i;
+                rx_pend <= '1';
+                rx_ch   <= rx_hit_ch;
             end if;
 
             nohit_pipe(0) <= rx_valid_i and not or_reduce(rx_hit);
@@ -1868,6 +1863,28 @@ begin
         end if;
 
     end process eng_proc;
+
+    -- simulation only: the received frame must not change from rx_valid_i until rx_done_o
+    -- pragma translate_off
+    rx_hold_check_proc : process (clk_i) is
+
+        variable held : std_logic_vector(68 downto 0);
+
+    begin
+
+        if rising_edge(clk_i) then
+            if rx_pend = '0' then
+                held := rx_rtr_i & rx_dlc_i & rx_data_i;
+            else
+                assert rx_rtr_i & rx_dlc_i & rx_data_i = held
+                    report "canopen_sdo_channels: rx_*_i changed before rx_done_o"
+                    severity failure;
+            end if;
+        end if;
+
+    end process rx_hold_check_proc;
+
+    -- pragma translate_on
 
     rx_done_o       <= rx_done_q or nohit_pipe(1);
     rx_reply_o      <= rx_reply_q;

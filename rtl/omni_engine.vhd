@@ -66,7 +66,8 @@ entity omni_engine is
         reg_we_i    : in    std_logic;                     -- write reg_wdata_i
         reg_wdata_i : in    std_logic_vector(31 downto 0); -- write data
         reg_rdata_o : out   std_logic_vector(31 downto 0); -- word at reg_addr_i, 1 cycle later
-        -- received frame (from the FSM, St5)
+        -- received frame (from the FSM, St5): rx_id_i .. rx_data_i are read where they are,
+        -- not copied: the caller holds them from rx_valid_i until rx_done_o
         rx_valid_i      : in    std_logic;                     -- strobe: process this frame
         rx_id_i         : in    std_logic_vector(10 downto 0); -- identifier
         rx_rtr_i        : in    std_logic;                     -- remote frame
@@ -416,11 +417,7 @@ architecture rtl of omni_engine is
     -- ---------------------------------------------------------------------------------------------
     -- Receiver
     -- ---------------------------------------------------------------------------------------------
-    signal rx_st     : rx_state_t;
-    signal rx_id_q   : std_logic_vector(10 downto 0);
-    signal rx_rtr_q  : std_logic;
-    signal rx_dlc_q  : std_logic_vector(3 downto 0);
-    signal rx_data_q : std_logic_vector(63 downto 0);
+    signal rx_st : rx_state_t;
     -- matching slot: feedback (data frame) and query reply (remote frame)
     signal m_fb_any  : std_logic;
     signal m_fb_idx  : natural range 0 to N_SLOTS - 1;
@@ -713,7 +710,7 @@ begin
     end process slot_match_proc;
 
     match_proc : process (enable_i, m_fb_any, m_fb_idx, m_len, m_rep_any, m_seq, master_id,
-                          rx_dlc_q, rx_id_q, rx_rtr_q, rx_st, s_dlc) is
+                          rx_dlc_i, rx_id_i, rx_rtr_i, rx_st, s_dlc) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
@@ -721,8 +718,8 @@ begin
 
     begin
 
-        fc_v   := rx_id_q(10 downto 8);
-        node_v := rx_id_q(7 downto 0);
+        fc_v   := rx_id_i(10 downto 8);
+        node_v := rx_id_i(7 downto 0);
         pd_v   := fc_v = "010" or fc_v = "011" or fc_v = "101" or fc_v = "110";
 
         c_store <= '0';
@@ -733,20 +730,20 @@ begin
         c_unexp <= '0';
 
         if rx_st = S_RX_MATCH and enable_i = '1' then
-            if rx_rtr_q = '1' then
-                if rx_id_q = "000" & x"00" then
+            if rx_rtr_i = '1' then
+                if rx_id_i = "000" & x"00" then
                     c_query <= '1';
                 elsif fc_v = fc_nmt_c and m_rep_any = '1' then
                     c_reply <= '1';
                 else
                     c_unexp <= '1';
                 end if;
-            elsif pd_v and node_v = master_id and rx_dlc_q /= x"0" and m_fb_any = '1' then
+            elsif pd_v and node_v = master_id and rx_dlc_i /= x"0" and m_fb_any = '1' then
 
                 for k in 0 to N_SLOTS - 1 loop
 
                     if m_fb_idx = k then
-                        if s_dlc(k) = rx_dlc_q then
+                        if s_dlc(k) = rx_dlc_i then
                             c_store <= '1';
                         else
                             c_len <= '1';
@@ -756,7 +753,7 @@ begin
                 end loop;
 
             elsif fc_v = fc_param_c and node_v = master_id
-                  and unsigned(rx_dlc_q) >= param_min_c then
+                  and unsigned(rx_dlc_i) >= param_min_c then
                 c_param <= '1';
             else
                 c_unexp <= '1';
@@ -1376,20 +1373,12 @@ begin
 
             end if;
 
-            -- received frame
-            if rx_st = S_RX_IDLE and rx_valid_i = '1' then
-                rx_id_q   <= rx_id_i;
-                rx_rtr_q  <= rx_rtr_i;
-                rx_dlc_q  <= rx_dlc_i;
-                rx_data_q <= rx_data_i;
-            end if;
-
             -- parameter mailbox
             if c_param = '1' then
-                pmb_sender <= rx_data_q(7 downto 0);
-                pmb_type   <= rx_data_q(15 downto 8);
-                pmb_dlc    <= rx_dlc_q;
-                d_v        := keep_bytes(rx_data_q, rx_dlc_q);
+                pmb_sender <= rx_data_i(7 downto 0);
+                pmb_type   <= rx_data_i(15 downto 8);
+                pmb_dlc    <= rx_dlc_i;
+                d_v        := keep_bytes(rx_data_i, rx_dlc_i);
                 pmb_lo     <= d_v(47 downto 16);
                 pmb_hi     <= d_v(63 downto 48);
             end if;
@@ -1403,7 +1392,7 @@ begin
     fr_we <= c_store;
     fr_wa <= m_fb_idx;
     fr_wd <= std_logic_vector(cyc_cnt) & std_logic_vector(rx_seq_next)
-             & keep_bytes(rx_data_q, rx_dlc_q);
+             & keep_bytes(rx_data_i, rx_dlc_i);
     fr_re <= '1' when wr_sel = '1'
                       and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C))
                       < N_SLOTS else
@@ -1770,6 +1759,28 @@ begin
             rd_addr_i => cnt_ra,
             rd_data_o => cnt_q
         );
+
+    -- simulation only: the received frame must not change from rx_valid_i until rx_done_o
+    -- pragma translate_off
+    rx_hold_check_proc : process (clk_i) is
+
+        variable held : std_logic_vector(79 downto 0);
+
+    begin
+
+        if rising_edge(clk_i) then
+            if rx_st = S_RX_IDLE then
+                held := rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i;
+            else
+                assert rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i = held
+                    report "omni_engine: rx_*_i changed before rx_done_o"
+                    severity failure;
+            end if;
+        end if;
+
+    end process rx_hold_check_proc;
+
+    -- pragma translate_on
 
     -- ---------------------------------------------------------------------------------------------
     -- Outputs
