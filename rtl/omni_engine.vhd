@@ -380,6 +380,10 @@ architecture rtl of omni_engine is
     signal sw_free   : std_logic;
     signal sw_we     : std_logic;
     signal sw_miss   : std_logic_vector(15 downto 0);
+    -- the visited slot's stale flag and pending count, registered with its read (phase 0);
+    -- the write adds that count and takes it off the pending one
+    signal sw_stale : std_logic;
+    signal sw_pend  : unsigned(1 downto 0);
     -- the host's selected slot as of the next edge
     signal hsel_next : natural range 0 to 7;
     signal hsel_ra   : natural range 0 to N_SLOTS - 1;
@@ -1427,11 +1431,11 @@ begin
                '0';
     sc_mwe  <= c_store or c_len;
     sw_free <= not (sc_hand or sc_mwe);
-    sw_we   <= '1' when sw_ph = '1' and sw_free = '1' and miss_pend(sw_slot) /= 0 else
+    sw_we   <= '1' when sw_ph = '1' and sw_free = '1' and sw_pend /= 0 else
                '0';
     sw_miss <= std_logic_vector(sat_add(unsigned(sc_q(47 downto 32))
-                                        and (15 downto 0 => not miss_stale(sw_slot)),
-                                        to_integer(miss_pend(sw_slot))));
+                                        and (15 downto 0 => not sw_stale),
+                                        to_integer(sw_pend)));
 
     sc_we <= sc_mwe or sw_we;
     sc_wa <= m_fb_idx when sc_mwe = '1' else
@@ -1499,6 +1503,8 @@ begin
             miss_pend  <= (others => (others => '0'));
             sw_slot    <= 0;
             sw_ph      <= '0';
+            sw_stale   <= '1';
+            sw_pend    <= (others => '0');
             m_seq_ok   <= '0';
             m_len_ok   <= '0';
             hl_ok      <= '0';
@@ -1517,9 +1523,13 @@ begin
             end if;
 
             -- sweep: phase 0 reads sw_slot, phase 1 writes it and moves on; a cycle in which
-            -- the match uses the port sends it back to phase 0 (read again)
+            -- the match uses the port, or a clear, sends it back to phase 0 (read again)
+            if sw_ph = '0' then
+                sw_stale <= miss_stale(sw_slot);
+                sw_pend  <= miss_pend(sw_slot);
+            end if;
             sw_ph <= '0';
-            if sw_free = '1' then
+            if sw_free = '1' and clr = '0' then
                 sw_ph <= not sw_ph;
                 if sw_ph = '1' then
                     if sw_slot = N_SLOTS - 1 then
@@ -1539,7 +1549,7 @@ begin
                 p_v := miss_pend(k);
                 if sw_we = '1' and sw_slot = k then
                     miss_stale(k) <= '0';
-                    p_v           := (others => '0');
+                    p_v           := p_v - sw_pend;
                 end if;
                 if miss_ev(k) = '1' and p_v /= 3 then
                     p_v := p_v + 1;

@@ -528,7 +528,7 @@ OMNI_REGISTERS: tuple[Register, ...] = (
       F("LEN_ERR", "15:0", "RO", None, "feedback with a DLC other than the slot's "
                                        "(saturates)"),
       F("MISSED", "31:16", "RO", None, "cycles without feedback (saturates; a closed cycle "
-                                       "shows within 2 * N_SLOTS + 3 clock cycles)")),
+                                       "shows within 2 * N_SLOTS + 4 clock cycles)")),
     R("OMNI_FB_NEW", 0xD6, "W1C", "NEW flags of all slots",
       F("NEW", "7:0", "W1C", None, "bit k: slot k stored feedback not acknowledged")),
     R("OMNI_ALIVE", 0xD7, "RO", "replies to the last node query",

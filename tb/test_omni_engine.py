@@ -54,9 +54,9 @@ CNT_LAG = 13
 def slot_lag(n_slots: int) -> int:
     """Slot counter read lag (docs/omni_engine.md): a missed cycle closed at edge e shows in
     OMNI_SLOT_ERR.MISSED in every read with the address on reg_addr_i slot_lag cycles later
-    (the MISSED sweep visits a slot every 2 * N_SLOTS cycles; + 3 for pending count, host copy
-    and read register)."""
-    return 2 * n_slots + 3
+    (the MISSED sweep visits a slot every 2 * N_SLOTS cycles; + 4 for the registered events,
+    the pending count, host copy and read register)."""
+    return 2 * n_slots + 4
 
 #: frame builder (docs/omni_engine.md): the cycle frame of a COMMIT or OMNI_CFG write at edge e
 #: is on cyc_* from edge e + BUILD_CYCLES on; a take before sends the previous frame and keeps
@@ -1018,6 +1018,37 @@ async def run_slot_counters_sweep_and_match(dut):
         info = await tb.read("OMNI_FB_INFO")
         assert R.get_field("OMNI_FB_INFO", "SEQ", info) == good[k], (k, good)
     assert await tb.read("OMNI_CNT_MISSED") == sum(missed.values())
+
+
+@cocotb.test(timeout_time=20, timeout_unit="ms")
+async def run_slot_counters_clear_during_sweep(dut):
+    """Purpose: CLR_COUNTERS while the MISSED sweep is adding a cycle's misses leaves every
+    slot counter at 0 (the visit in flight must not write the old count back).
+
+    Verifies: all four slots miss every cycle; 120 times CLR_COUNTERS 0 .. 2 * N_SLOTS + 4
+    cycles after a cycle_i, after a random pause (so the clear meets every phase of the
+    sweep, including the read of the selected slot): MISSED of that slot reads 0 slot_lag
+    cycles later, and 1 after the next cycle_i (fails if a clear in the read cycle of a visit
+    does not restart it).
+    """
+    tb = TB(dut)
+    await tb.start()
+    await tb.configure(n_axes=1, slots=PLATFORM_SLOTS)
+    await tb.write("OMNI_SEL", 3)
+    await tb.cycle()  # the first cycle_i is not checked
+    rng = random.Random(7)
+    for n in range(120):
+        # a random pause moves the sweep's position against cycle_i
+        await ClockCycles(dut.clk_i, rng.randrange(2 * tb.n_slots), rising=False)
+        await tb.take()
+        await tb.fire()
+        off_cycles = rng.randrange(2 * tb.n_slots + 5)
+        await ClockCycles(dut.clk_i, off_cycles, rising=False)
+        await tb.write("OMNI_CTRL", R.OMNI_CTRL_CLR_COUNTERS)
+        assert await tb.field("OMNI_SLOT_ERR", "MISSED") == 0, (n, off_cycles)
+    await tb.take()
+    await tb.fire()
+    assert await tb.field("OMNI_SLOT_ERR", "MISSED") == 1
 
 
 @cocotb.test(timeout_time=10, timeout_unit="ms")
