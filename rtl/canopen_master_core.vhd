@@ -277,7 +277,7 @@ architecture rtl of canopen_master_core is
     signal sync_load_done : std_logic;
     signal sync_encap     : std_logic;
     -- the SYNC timer is in the second half of the period (SYNC_PERIOD_US / 2 or later): the
-    -- Omni-ID preload waits for it
+    -- Omni-ID preload waits for it (registered: one cycle after the timer gets there)
     signal sync_half        : std_logic;
     signal sync_period_half : unsigned(31 downto 0);
     -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
@@ -562,10 +562,8 @@ begin
     err_pending <= err_can or err_busoff or err_reinit or err_node or err_chip;
     sync_due    <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
                    and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
-    -- (split compare: two 16-bit halves side by side, canopen_util_pkg)
+    -- half the period, compared with the timer in the clocked process (sync_half)
     sync_period_half <= shift_right(unsigned(sync_period_us), 1);
-    sync_half        <= '0' when lt_split(unsigned(sync_timer), sync_period_half) else
-                        '1';
     om_preload_ok    <= om_feasible and sync_half;
     -- a generation is only dispatched when its TX buffer is free
     nmt_gen_req <= (nmt_pending or acfg_nmt_pending or (mon_tx_req and not omni_en))
@@ -698,6 +696,7 @@ begin
             sdo_tx_ack       <= '0';
             mon_tx_ack       <= '0';
             pdo_tx_ack       <= '0';
+            sync_half        <= '0';
             init_done_q      <= '0';
             init_fail_q      <= '0';
             can_tec          <= (others => '0');
@@ -710,6 +709,12 @@ begin
             pdo_tx_ack   <= '0';
             init_done_q  <= ctl_init_done_i;
             init_fail_q  <= ctl_init_fail_i;
+            -- (split compare: two 16-bit halves side by side, canopen_util_pkg; registered, so
+            -- the FSM's SYNC condition starts at a register)
+            sync_half <= '1';
+            if lt_split(unsigned(sync_timer), sync_period_half) then
+                sync_half <= '0';
+            end if;
 
             -- St3: Receive_Data ---------------------------------------------------------------
             if rx_pop = '1' and rx_head_ok = '1' then
