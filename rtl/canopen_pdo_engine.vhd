@@ -1587,13 +1587,8 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if rx_st = S_RX_IDLE then
-                held := rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i;
-            else
-                assert rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i = held
-                    report "canopen_pdo_engine: rx_*_i changed before rx_done_o"
-                    severity failure;
-            end if;
+            hold_check(held, rx_st /= S_RX_IDLE, rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i,
+                       "canopen_pdo_engine: rx_*_i (until rx_done_o)");
         end if;
 
     end process rx_hold_check_proc;

@@ -1873,13 +1873,8 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if rx_pend = '0' then
-                held := rx_rtr_i & rx_dlc_i & rx_data_i;
-            else
-                assert rx_rtr_i & rx_dlc_i & rx_data_i = held
-                    report "canopen_sdo_channels: rx_*_i changed before rx_done_o"
-                    severity failure;
-            end if;
+            hold_check(held, rx_pend = '1', rx_rtr_i & rx_dlc_i & rx_data_i,
+                       "canopen_sdo_channels: rx_*_i (until rx_done_o)");
         end if;
 
     end process rx_hold_check_proc;

@@ -106,6 +106,17 @@ package canopen_util_pkg is
 
     function lo_ones_after_inc (c : unsigned) return std_logic;
 
+    -- simulation-only check of an input the caller holds while the block works on it (called
+    -- at a clock edge from a process behind translate_off): while busy is false the value is
+    -- taken into held, while busy is true it must equal held, else a failure with msg
+
+    procedure hold_check (
+        variable held : inout std_logic_vector;
+        busy          : in    boolean;
+        value         : in    std_logic_vector;
+        msg           : in    string
+    );
+
 end package canopen_util_pkg;
 
 package body canopen_util_pkg is
@@ -381,5 +392,23 @@ package body canopen_util_pkg is
         return '0';
 
     end function lo_ones_after_inc;
+
+    procedure hold_check (
+        variable held : inout std_logic_vector;
+        busy          : in    boolean;
+        value         : in    std_logic_vector;
+        msg           : in    string
+    ) is
+    begin
+
+        if busy then
+            assert value = held
+                report msg & " changed while it is held"
+                severity failure;
+        else
+            held := value;
+        end if;
+
+    end procedure hold_check;
 
 end package body canopen_util_pkg;

@@ -29,6 +29,7 @@ library ieee;
 
 library work;
     use work.mcp2510_pkg.all;
+    use work.canopen_util_pkg.all;
 
 entity mcp2510_instr is
     generic (
@@ -251,13 +252,8 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if active = '0' and cmd_valid_i = '1' then
-                held := cmd_wdata_i;
-            elsif active = '1' then
-                assert cmd_wdata_i = held
-                    report "mcp2510_instr: cmd_wdata_i changed during a command"
-                    severity failure;
-            end if;
+            hold_check(held, active = '1', cmd_wdata_i,
+                       "mcp2510_instr: cmd_wdata_i (until rsp_valid_o)");
         end if;
 
     end process hold_check_proc;

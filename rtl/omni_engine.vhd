@@ -182,8 +182,6 @@ architecture rtl of omni_engine is
 
     type nib_arr_t is array (natural range <>) of std_logic_vector(3 downto 0);
 
-    type u16_arr_t is array (natural range <>) of unsigned(15 downto 0);
-
     -- MISSED increments not yet added to the RAM word, per slot
 
     type u2_arr_t is array (natural range <>) of unsigned(1 downto 0);
@@ -1779,13 +1777,8 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            if rx_st = S_RX_IDLE then
-                held := rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i;
-            else
-                assert rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i = held
-                    report "omni_engine: rx_*_i changed before rx_done_o"
-                    severity failure;
-            end if;
+            hold_check(held, rx_st /= S_RX_IDLE, rx_id_i & rx_rtr_i & rx_dlc_i & rx_data_i,
+                       "omni_engine: rx_*_i (until rx_done_o)");
         end if;
 
     end process rx_hold_check_proc;
