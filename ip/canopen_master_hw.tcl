@@ -66,6 +66,7 @@ add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd
 add_fileset_file omni_feasibility.vhd     VHDL PATH ../rtl/omni_feasibility.vhd
+add_fileset_file omni_node_table.vhd      VHDL PATH ../rtl/omni_node_table.vhd
 add_fileset_file omni_engine.vhd          VHDL PATH ../rtl/omni_engine.vhd
 add_fileset_file canopen_node_monitor.vhd VHDL PATH ../rtl/canopen_node_monitor.vhd
 add_fileset_file mcp2510_spi_master.vhd   VHDL PATH ../rtl/mcp2510_spi_master.vhd
@@ -95,6 +96,7 @@ add_fileset_file canopen_sdo_channels.vhd VHDL PATH ../rtl/canopen_sdo_channels.
 add_fileset_file canopen_autoconfig.vhd   VHDL PATH ../rtl/canopen_autoconfig.vhd
 add_fileset_file canopen_pdo_engine.vhd   VHDL PATH ../rtl/canopen_pdo_engine.vhd
 add_fileset_file omni_feasibility.vhd     VHDL PATH ../rtl/omni_feasibility.vhd
+add_fileset_file omni_node_table.vhd      VHDL PATH ../rtl/omni_node_table.vhd
 add_fileset_file omni_engine.vhd          VHDL PATH ../rtl/omni_engine.vhd
 add_fileset_file canopen_node_monitor.vhd VHDL PATH ../rtl/canopen_node_monitor.vhd
 add_fileset_file mcp2510_spi_master.vhd   VHDL PATH ../rtl/mcp2510_spi_master.vhd

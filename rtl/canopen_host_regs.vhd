@@ -783,45 +783,36 @@ begin
                              sdo_subindex, sdo_timeout, sync_count_i, sync_en, sync_overflow,
                              sync_period, sync_window, tec_i, time_us_i, tx_pending_i) is
 
-        -- the address, copied to a variable that the put procedure below reads
+        -- the address and the word being built (put: canopen_util_pkg)
         variable a : std_logic_vector(7 downto 0);
         variable v : std_logic_vector(31 downto 0);
-
-        procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
-        begin
-
-            if is_off(a, n) then
-                v := v or word;
-            end if;
-
-        end procedure put;
 
     begin
 
         a := av_addr;
         v := (others => '0');
 
-        put(REG_ID_C, ID_RESET_C);
-        put(REG_VERSION_C, VERSION_RESET_C);
-        put(REG_CTRL_C, at(sync_en, CTRL_SYNC_EN_C) or at(omni_en, CTRL_OMNI_C));
-        put(REG_STATUS_C,
+        put(v, a, REG_ID_C, ID_RESET_C);
+        put(v, a, REG_VERSION_C, VERSION_RESET_C);
+        put(v, a, REG_CTRL_C, at(sync_en, CTRL_SYNC_EN_C) or at(omni_en, CTRL_OMNI_C));
+        put(v, a, REG_STATUS_C,
             at(fsm_state_i, STATUS_FSM_STATE_HI_C, STATUS_FSM_STATE_LO_C)
             or at(init_done_i, STATUS_INIT_DONE_C) or at(init_fail_i, STATUS_INIT_FAIL_C)
             or at(ctrl_busy_i, STATUS_CTRL_BUSY_C)
             or at(tx_pending_i, STATUS_TX_PENDING_HI_C, STATUS_TX_PENDING_LO_C)
             or at(bus_off_i, STATUS_BUS_OFF_C) or at(err_passive_i, STATUS_ERR_PASSIVE_C));
-        put(REG_IRQ_STATUS_C, at(irq_status, irq_bits_c - 1, 0));
-        put(REG_IRQ_ENABLE_C, at(irq_enable, irq_bits_c - 1, 0));
-        put(REG_NMT_CMD_C,
+        put(v, a, REG_IRQ_STATUS_C, at(irq_status, irq_bits_c - 1, 0));
+        put(v, a, REG_IRQ_ENABLE_C, at(irq_enable, irq_bits_c - 1, 0));
+        put(v, a, REG_NMT_CMD_C,
             at(nmt_busy_i, NMT_CMD_NMT_BUSY_C) or at(nmt_refused_i, NMT_CMD_REFUSED_C));
-        put(REG_SYNC_PERIOD_US_C, sync_period);
-        put(REG_SYNC_OVERFLOW_C,
+        put(v, a, REG_SYNC_PERIOD_US_C, sync_period);
+        put(v, a, REG_SYNC_OVERFLOW_C,
             at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C)
             or at(ovf_refused, SYNC_OVERFLOW_REFUSED_C));
-        put(REG_SYNC_WINDOW_US_C, sync_window);
-        put(REG_SYNC_COUNT_C, sync_count_i);
-        put(REG_TIME_US_C, time_us_i);
-        put(REG_CAN_STATUS_C,
+        put(v, a, REG_SYNC_WINDOW_US_C, sync_window);
+        put(v, a, REG_SYNC_COUNT_C, sync_count_i);
+        put(v, a, REG_TIME_US_C, time_us_i);
+        put(v, a, REG_CAN_STATUS_C,
             at(tec_i, CAN_STATUS_TEC_HI_C, CAN_STATUS_TEC_LO_C)
             or at(rec_i, CAN_STATUS_REC_HI_C, CAN_STATUS_REC_LO_C)
             or at(eflg_i, CAN_STATUS_EFLG_HI_C, CAN_STATUS_EFLG_LO_C));
@@ -830,16 +821,16 @@ begin
 
         for k in 0 to MAX_NODES - 1 loop
 
-            put(REG_NODE_CFG_C + k * REG_NODE_STRIDE_C,
+            put(v, a, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C,
                 at(node_id(k), NODE_CFG_NODE_ID_HI_C, NODE_CFG_NODE_ID_LO_C)
                 or at(node_mode(k), NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C)
                 or at(node_autostart(k), NODE_CFG_AUTOSTART_C)
                 or at(node_rst_loss(k), NODE_CFG_RESET_ON_LOSS_C));
-            put(REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
+            put(v, a, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
                 at(node_time(k), NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C)
                 or at(node_life(k), NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C));
             -- NMT_STATE and NODE_LAST_MS: the status RAM's data, selected after the read
-            put(REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
+            put(v, a, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
                 at(node_alive_i(k), NODE_STATUS_ALIVE_C)
                 or at(node_lost_i(k), NODE_STATUS_LOST_C)
                 or at(node_toggle_i(k), NODE_STATUS_TOGGLE_ERR_C)
@@ -847,51 +838,51 @@ begin
 
         end loop;
 
-        put(REG_EMCY_STATUS_C,
+        put(v, a, REG_EMCY_STATUS_C,
             at(emcy_count_i, EMCY_STATUS_COUNT_HI_C, EMCY_STATUS_COUNT_LO_C)
             or at(emcy_lost_i, EMCY_STATUS_LOST_C));
-        put(REG_EMCY_NODE_C, at(emcy_node_i, EMCY_NODE_NODE_HI_C, EMCY_NODE_NODE_LO_C));
-        put(REG_EMCY_DATA_LO_C, emcy_data_i(31 downto 0));
-        put(REG_EMCY_DATA_HI_C, emcy_data_i(63 downto 32));
-        put(REG_EMCY_TIME_MS_C, emcy_time_i);
-        put(REG_SDO_OBJ_C,
+        put(v, a, REG_EMCY_NODE_C, at(emcy_node_i, EMCY_NODE_NODE_HI_C, EMCY_NODE_NODE_LO_C));
+        put(v, a, REG_EMCY_DATA_LO_C, emcy_data_i(31 downto 0));
+        put(v, a, REG_EMCY_DATA_HI_C, emcy_data_i(63 downto 32));
+        put(v, a, REG_EMCY_TIME_MS_C, emcy_time_i);
+        put(v, a, REG_SDO_OBJ_C,
             at(sdo_index, SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
             or at(sdo_subindex, SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C));
-        put(REG_SDO_CMD_C,
+        put(v, a, REG_SDO_CMD_C,
             at(sdo_busy_i, SDO_CMD_BUSY_C)
             or at(sdo_done(sdo_sel) and not sdo_start_i(sdo_sel), SDO_CMD_DONE_C)
             or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C));
-        put(REG_SDO_TIMEOUT_MS_C,
+        put(v, a, REG_SDO_TIMEOUT_MS_C,
             at(sdo_timeout, SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C));
-        put(REG_SDO_COB_C,
+        put(v, a, REG_SDO_COB_C,
             at(sdo_cob_req, SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
             or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
-        put(REG_SDO_SEL_C,
+        put(v, a, REG_SDO_SEL_C,
             at(sdo_chan, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C)
             or at(sdo_done and not sdo_start_i, SDO_SEL_DONE_HI_C, SDO_SEL_DONE_LO_C)
             or at(sdo_chan_busy_i, SDO_SEL_BUSY_HI_C, SDO_SEL_BUSY_LO_C)
             or at(std_logic_vector(to_unsigned(N_SDO, 3)), SDO_SEL_CHANNELS_HI_C,
                      SDO_SEL_CHANNELS_LO_C));
 
-        put(REG_ACFG_CTRL_C, at(acfg_nodes, ACFG_CTRL_START_NODES_C));
-        put(REG_ACFG_STATUS_C,
+        put(v, a, REG_ACFG_CTRL_C, at(acfg_nodes, ACFG_CTRL_START_NODES_C));
+        put(v, a, REG_ACFG_STATUS_C,
             at(acfg_busy_i, ACFG_STATUS_BUSY_C) or at(acfg_done, ACFG_STATUS_DONE_C)
             or at(acfg_refused_i, ACFG_STATUS_REFUSED_C)
             or at(acfg_nodes_ok_i, ACFG_STATUS_NODES_OK_HI_C, ACFG_STATUS_NODES_OK_LO_C)
             or at(acfg_nodes_fail_i, ACFG_STATUS_NODES_FAIL_HI_C, ACFG_STATUS_NODES_FAIL_LO_C));
-        put(REG_ACFG_FAIL_C,
+        put(v, a, REG_ACFG_FAIL_C,
             at(acfg_fail_node_i, ACFG_FAIL_NODE_HI_C, ACFG_FAIL_NODE_LO_C)
             or at(acfg_fail_entry_i, ACFG_FAIL_ENTRY_HI_C, ACFG_FAIL_ENTRY_LO_C));
-        put(REG_ACFG_ABORT_C, acfg_fail_abort_i);
-        put(REG_ACFG_ENTRY_C,
+        put(v, a, REG_ACFG_ABORT_C, acfg_fail_abort_i);
+        put(v, a, REG_ACFG_ENTRY_C,
             at(std_logic_vector(acfg_entry), ACFG_ENTRY_ENTRY_HI_C, ACFG_ENTRY_ENTRY_LO_C)
             or at(acfg_node, ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C)
             or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C)
             or at(acfg_ref, ACFG_ENTRY_REFUSED_C));
-        put(REG_ACFG_OBJ_C,
+        put(v, a, REG_ACFG_OBJ_C,
             at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
             or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
-        put(REG_ACFG_FAIL_SEL_C,
+        put(v, a, REG_ACFG_FAIL_SEL_C,
             at(acfg_fail_sel, ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C));
 
         rd_mux <= v;

@@ -106,6 +106,16 @@ package canopen_util_pkg is
 
     function lo_ones_after_inc (c : unsigned) return std_logic;
 
+    -- read multiplexer in AND-OR form (not a chain of conditional assignments, so the synthesis
+    -- tree stays balanced): v := v or word when addr is the word offset n
+
+    procedure put (
+        variable v : inout std_logic_vector(31 downto 0);
+        addr       : in    std_logic_vector;
+        n          : in    natural;
+        word       : in    std_logic_vector(31 downto 0)
+    );
+
     -- simulation-only check of an input the caller holds while the block works on it (called
     -- at a clock edge from a process behind translate_off): while busy is false the value is
     -- taken into held, while busy is true it must equal held, else a failure with msg
@@ -392,6 +402,27 @@ package body canopen_util_pkg is
         return '0';
 
     end function lo_ones_after_inc;
+
+    procedure put (
+        variable v : inout std_logic_vector(31 downto 0);
+        addr       : in    std_logic_vector;
+        n          : in    natural;
+        word       : in    std_logic_vector(31 downto 0)
+    ) is
+
+        variable m : std_logic_vector(31 downto 0);
+
+    begin
+
+        m := (others => '0');
+
+        if is_off(addr, n) then
+            m := (others => '1');
+        end if;
+
+        v := v or (word and m);
+
+    end procedure put;
 
     procedure hold_check (
         variable held : inout std_logic_vector;

@@ -14,6 +14,7 @@ canopen_sdo_channels.vhd
 canopen_autoconfig.vhd
 canopen_pdo_engine.vhd
 omni_feasibility.vhd
+omni_node_table.vhd
 omni_engine.vhd
 canopen_node_monitor.vhd
 mcp2510_spi_master.vhd

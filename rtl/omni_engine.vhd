@@ -23,11 +23,13 @@
 --   * Frame queue (tx_req_o / tx_ack_i, one frame at a time, fixed priority): NMT stop all
 --     after a missing node, host NMT, broadcast after a SYNC, node query, query reply,
 --     parameter frame.
---   * Node table (N_SLOTS): feedback frames (fc 010/011/101/110 to MASTER_ID, byte 0 = the
---     slot's node) stored in a RAM with sequence number and cycle counter; length errors,
---     missed cycles; node query every M cycles with a reply window, ALIVE / MISSING bitmaps.
+--   * Node table (N_SLOTS, entity omni_node_table): feedback frames (fc 010/011/101/110 to
+--     MASTER_ID, byte 0 = the slot's node) stored in a RAM with sequence number and cycle
+--     counter; length errors, missed cycles; node query every M cycles with a reply window
+--     (here), ALIVE / MISSING bitmaps.
 --   * Parameter frames (fc 111) out, parameter mailbox in.
---   * Feasibility: worst-case bits of one cycle against the period (feasible_o).
+--   * Feasibility: worst-case bits of one cycle against the period (feasible_o, entity
+--     omni_feasibility).
 --   Registers: OMNI_* in canopen_regs_pkg (scripts/regmap.py). Timing and decisions:
 --   docs/omni_engine.md.
 -- =================================================================================================
@@ -101,39 +103,30 @@ architecture rtl of omni_engine is
     constant nmt_dlc_c   : std_logic_vector(3 downto 0)  := x"2";          -- [node][state]
     constant param_min_c : natural                       := 2;             -- [sender][type]
     constant max_axes_c  : natural                       := 8;             -- staging registers
-    constant fram_w_c    : positive                      := 64 + 16 + 16;  -- data, seq, cycle
-
-    -- no slot flagged
-    constant zero_slots_c : std_logic_vector(N_SLOTS - 1 downto 0) := (others => '0');
 
     -- register window offsets (address - REG_OMNI_WIN_C)
-    constant off_info_c   : natural := REG_OMNI_INFO_C - REG_OMNI_WIN_C;
-    constant off_cfg_c    : natural := REG_OMNI_CFG_C - REG_OMNI_WIN_C;
-    constant off_ctrl_c   : natural := REG_OMNI_CTRL_C - REG_OMNI_WIN_C;
-    constant off_stat_c   : natural := REG_OMNI_STATUS_C - REG_OMNI_WIN_C;
-    constant off_k_c      : natural := REG_OMNI_SYNC_K_C - REG_OMNI_WIN_C;
-    constant off_poll_c   : natural := REG_OMNI_POLL_C - REG_OMNI_WIN_C;
-    constant off_qwin_c   : natural := REG_OMNI_QUERY_WIN_C - REG_OMNI_WIN_C;
-    constant off_cycle_c  : natural := REG_OMNI_CYCLE_C - REG_OMNI_WIN_C;
-    constant off_sp_c     : natural := REG_OMNI_SP01_C - REG_OMNI_WIN_C;
-    constant off_nmt_c    : natural := REG_OMNI_NMT_C - REG_OMNI_WIN_C;
-    constant off_phdr_c   : natural := REG_OMNI_PARAM_HDR_C - REG_OMNI_WIN_C;
-    constant off_plo_c    : natural := REG_OMNI_PARAM_LO_C - REG_OMNI_WIN_C;
-    constant off_phi_c    : natural := REG_OMNI_PARAM_HI_C - REG_OMNI_WIN_C;
-    constant off_sel_c    : natural := REG_OMNI_SEL_C - REG_OMNI_WIN_C;
-    constant off_scfg_c   : natural := REG_OMNI_SLOT_CFG_C - REG_OMNI_WIN_C;
-    constant off_fblo_c   : natural := REG_OMNI_FB_LO_C - REG_OMNI_WIN_C;
-    constant off_fbhi_c   : natural := REG_OMNI_FB_HI_C - REG_OMNI_WIN_C;
-    constant off_fbinfo_c : natural := REG_OMNI_FB_INFO_C - REG_OMNI_WIN_C;
-    constant off_serr_c   : natural := REG_OMNI_SLOT_ERR_C - REG_OMNI_WIN_C;
-    constant off_fbnew_c  : natural := REG_OMNI_FB_NEW_C - REG_OMNI_WIN_C;
-    constant off_alive_c  : natural := REG_OMNI_ALIVE_C - REG_OMNI_WIN_C;
-    constant off_miss_c   : natural := REG_OMNI_MISSING_C - REG_OMNI_WIN_C;
-    constant off_pmbi_c   : natural := REG_OMNI_PMB_INFO_C - REG_OMNI_WIN_C;
-    constant off_pmblo_c  : natural := REG_OMNI_PMB_LO_C - REG_OMNI_WIN_C;
-    constant off_pmbhi_c  : natural := REG_OMNI_PMB_HI_C - REG_OMNI_WIN_C;
-    constant off_bits_c   : natural := REG_OMNI_BUS_BITS_C - REG_OMNI_WIN_C;
-    constant off_cnt_c    : natural := REG_OMNI_CNT_FB_RX_C - REG_OMNI_WIN_C;
+    constant off_info_c  : natural := REG_OMNI_INFO_C - REG_OMNI_WIN_C;
+    constant off_cfg_c   : natural := REG_OMNI_CFG_C - REG_OMNI_WIN_C;
+    constant off_ctrl_c  : natural := REG_OMNI_CTRL_C - REG_OMNI_WIN_C;
+    constant off_stat_c  : natural := REG_OMNI_STATUS_C - REG_OMNI_WIN_C;
+    constant off_k_c     : natural := REG_OMNI_SYNC_K_C - REG_OMNI_WIN_C;
+    constant off_poll_c  : natural := REG_OMNI_POLL_C - REG_OMNI_WIN_C;
+    constant off_qwin_c  : natural := REG_OMNI_QUERY_WIN_C - REG_OMNI_WIN_C;
+    constant off_cycle_c : natural := REG_OMNI_CYCLE_C - REG_OMNI_WIN_C;
+    constant off_sp_c    : natural := REG_OMNI_SP01_C - REG_OMNI_WIN_C;
+    constant off_nmt_c   : natural := REG_OMNI_NMT_C - REG_OMNI_WIN_C;
+    constant off_phdr_c  : natural := REG_OMNI_PARAM_HDR_C - REG_OMNI_WIN_C;
+    constant off_plo_c   : natural := REG_OMNI_PARAM_LO_C - REG_OMNI_WIN_C;
+    constant off_phi_c   : natural := REG_OMNI_PARAM_HI_C - REG_OMNI_WIN_C;
+    constant off_sel_c   : natural := REG_OMNI_SEL_C - REG_OMNI_WIN_C;
+    constant off_scfg_c  : natural := REG_OMNI_SLOT_CFG_C - REG_OMNI_WIN_C;
+    constant off_fbnew_c : natural := REG_OMNI_FB_NEW_C - REG_OMNI_WIN_C;
+    constant off_miss_c  : natural := REG_OMNI_MISSING_C - REG_OMNI_WIN_C;
+    constant off_pmbi_c  : natural := REG_OMNI_PMB_INFO_C - REG_OMNI_WIN_C;
+    constant off_pmblo_c : natural := REG_OMNI_PMB_LO_C - REG_OMNI_WIN_C;
+    constant off_pmbhi_c : natural := REG_OMNI_PMB_HI_C - REG_OMNI_WIN_C;
+    constant off_bits_c  : natural := REG_OMNI_BUS_BITS_C - REG_OMNI_WIN_C;
+    constant off_cnt_c   : natural := REG_OMNI_CNT_FB_RX_C - REG_OMNI_WIN_C;
     -- counters, in address order from OMNI_CNT_FB_RX
     constant cnt_fb_c     : natural := 0;
     constant cnt_len_c    : natural := 1;
@@ -176,19 +169,7 @@ architecture rtl of omni_engine is
 
     type sp_arr_t is array (0 to max_axes_c - 1) of std_logic_vector(15 downto 0);
 
-    type u8_arr_t is array (natural range <>) of std_logic_vector(7 downto 0);
-
-    type fc_arr_t is array (natural range <>) of std_logic_vector(2 downto 0);
-
-    type nib_arr_t is array (natural range <>) of std_logic_vector(3 downto 0);
-
-    -- MISSED increments not yet added to the RAM word, per slot
-
-    type u2_arr_t is array (natural range <>) of unsigned(1 downto 0);
-
     type inc_arr_t is array (0 to cnt_num_c - 1) of natural range 0 to 2 ** inc_w_c - 1;
-
-    type fram_t is array (0 to N_SLOTS - 1) of std_logic_vector(fram_w_c - 1 downto 0);
 
     type tx_state_t is (
         S_IDLE, -- the highest-priority due item starts a frame
@@ -211,30 +192,8 @@ architecture rtl of omni_engine is
     );
 
     -- ---------------------------------------------------------------------------------------------
-    -- Helpers (is_off, keep_bytes, bit_int, sat_add: canopen_util_pkg)
+    -- Helpers (is_off, keep_bytes, bit_int, sat_add, put: canopen_util_pkg)
     -- ---------------------------------------------------------------------------------------------
-
-    -- number of '1' bits
-
-    function ones (v : std_logic_vector) return natural is
-
-        variable c : natural range 0 to 8;
-
-    begin
-
-        c := 0;
-
-        for i in v'range loop
-
-            if v(i) = '1' then
-                c := c + 1;
-            end if;
-
-        end loop;
-
-        return c;
-
-    end function ones;
 
     -- the last value of a modulo-n count: n - 1, and 0 for n = 0 (acts as 1)
 
@@ -341,69 +300,28 @@ architecture rtl of omni_engine is
     signal tx_data : std_logic_vector(63 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
-    -- Node table
+    -- Node table (omni_node_table) and query window
     -- ---------------------------------------------------------------------------------------------
-    signal s_node  : u8_arr_t(0 to N_SLOTS - 1);
-    signal s_fc    : fc_arr_t(0 to N_SLOTS - 1);
-    signal s_dlc   : nib_arr_t(0 to N_SLOTS - 1);
-    signal s_valid : std_logic_vector(N_SLOTS - 1 downto 0);
-    -- feedback not acknowledged; stored since reset; stored since the last cycle_i
-    signal s_new : std_logic_vector(N_SLOTS - 1 downto 0);
-    signal s_ok  : std_logic_vector(N_SLOTS - 1 downto 0);
-    signal s_got : std_logic_vector(N_SLOTS - 1 downto 0);
-    -- slot counters SEQ, LEN_ERR, MISSED in block RAM, one word per slot (section "Slot
-    -- counters"): a field reads 0 until written after a reset (SEQ: s_ok) or a CLR_COUNTERS
-    -- (LEN_ERR, MISSED: *_stale)
-    signal len_stale  : std_logic_vector(N_SLOTS - 1 downto 0);
-    signal miss_stale : std_logic_vector(N_SLOTS - 1 downto 0);
-    -- engine copy: written by the match cycle (SEQ / LEN_ERR) or the MISSED sweep, read at a
-    -- frame's hand-over (sc_hand) or by the sweep
-    signal sc_hand : std_logic;
-    signal sc_mwe  : std_logic;
-    signal sc_we   : std_logic;
-    signal sc_wa   : natural range 0 to N_SLOTS - 1;
-    signal sc_wd   : std_logic_vector(47 downto 0);
-    signal sc_ra   : natural range 0 to N_SLOTS - 1;
-    signal sc_q    : std_logic_vector(47 downto 0);
-    -- host copy (LEN_ERR and MISSED) read at the selection
-    signal hc_q  : std_logic_vector(31 downto 0);
-    signal hl_ok : std_logic;
-    signal hm_ok : std_logic;
-    -- MISSED: cycles missed by a slot and not yet added (0..3); the sweep that adds them (slot,
-    -- phase 0 read / 1 write; it waits while the match uses the port) and its write
-    signal miss_ev   : std_logic_vector(N_SLOTS - 1 downto 0);
-    signal miss_pend : u2_arr_t(0 to N_SLOTS - 1);
-    signal sw_slot   : natural range 0 to N_SLOTS - 1;
-    signal sw_ph     : std_logic;
-    signal sw_free   : std_logic;
-    signal sw_we     : std_logic;
-    signal sw_miss   : std_logic_vector(15 downto 0);
-    -- the visited slot's stale flag and pending count, registered with its read (phase 0);
-    -- the write adds that count and takes it off the pending one
-    signal sw_stale : std_logic;
-    signal sw_pend  : unsigned(1 downto 0);
-    -- the host's selected slot as of the next edge
-    signal hsel_next : natural range 0 to 7;
-    signal hsel_ra   : natural range 0 to N_SLOTS - 1;
-    -- query: replies of the last query, sticky missing
-    signal alive   : std_logic_vector(N_SLOTS - 1 downto 0);
-    signal missing : std_logic_vector(N_SLOTS - 1 downto 0);
-    -- query window: open, us left, evaluation due
-    signal q_open : std_logic;
-    signal q_cnt  : unsigned(15 downto 0);
-    signal q_eval : std_logic;
-    -- feedback RAM (synchronous read at the host's select)
-    signal fram  : fram_t;
-    signal fr_we : std_logic;
-    signal fr_wa : natural range 0 to N_SLOTS - 1;
-    signal fr_wd : std_logic_vector(fram_w_c - 1 downto 0);
-    signal fr_re : std_logic;
-    signal fr_ra : natural range 0 to N_SLOTS - 1;
-    signal fr_q  : std_logic_vector(fram_w_c - 1 downto 0);
-    -- host selection, snapshot NEW, snapshot holds a stored frame
-    signal sel_slot : natural range 0 to 7;
-    signal snap_new : std_logic;
-    signal snap_ok  : std_logic;
+    -- node table: hand-over strobe, the cycle closing while running and
+    -- its missed-cycle check, the slot search registered with the frame, slots missed at the
+    -- close and after the query window, its part of the read data, the slots for feasibility
+    signal nt_hand      : std_logic;
+    signal nt_close     : std_logic;
+    signal nt_check     : std_logic;
+    signal nt_fb_hit    : std_logic;
+    signal nt_dlc_ok    : std_logic;
+    signal nt_rep_hit   : std_logic;
+    signal nt_miss_cnt  : std_logic_vector(3 downto 0);
+    signal nt_qmiss_any : std_logic;
+    signal nt_qmiss_cnt : std_logic_vector(3 downto 0);
+    signal nt_rd_word   : std_logic_vector(31 downto 0);
+    signal s_valid      : std_logic_vector(N_SLOTS - 1 downto 0);
+    signal s_dlc_vec    : std_logic_vector(4 * N_SLOTS - 1 downto 0);
+    -- query: window open, us left, evaluation due; the query's tx_ack_i (window start)
+    signal q_open  : std_logic;
+    signal q_cnt   : unsigned(15 downto 0);
+    signal q_eval  : std_logic;
+    signal q_start : std_logic;
     -- parameter mailbox
     signal pmb_sender : std_logic_vector(7 downto 0);
     signal pmb_type   : std_logic_vector(7 downto 0);
@@ -420,16 +338,6 @@ architecture rtl of omni_engine is
     -- Receiver
     -- ---------------------------------------------------------------------------------------------
     signal rx_st : rx_state_t;
-    -- matching slot: feedback (data frame) and query reply (remote frame)
-    signal m_fb_any  : std_logic;
-    signal m_fb_idx  : natural range 0 to N_SLOTS - 1;
-    signal m_rep_any : std_logic;
-    signal m_rep_idx : natural range 0 to N_SLOTS - 1;
-    -- the same on the frame at rx_*_i (registered into m_* with the frame)
-    signal mi_fb_any  : std_logic;
-    signal mi_fb_idx  : natural range 0 to N_SLOTS - 1;
-    signal mi_rep_any : std_logic;
-    signal mi_rep_idx : natural range 0 to N_SLOTS - 1;
     -- classes in S_RX_MATCH (enabled only)
     signal c_store : std_logic;
     signal c_len   : std_logic;
@@ -437,14 +345,6 @@ architecture rtl of omni_engine is
     signal c_reply : std_logic;
     signal c_param : std_logic;
     signal c_unexp : std_logic;
-    -- SEQ and LEN_ERR of the matched slot: read from the RAM at the hand-over edge, with the
-    -- word's validity registered at that edge (a counter clear at that edge included); + 1
-    signal m_seq_ok    : std_logic;
-    signal m_len_ok    : std_logic;
-    signal m_seq       : unsigned(15 downto 0);
-    signal m_len       : unsigned(15 downto 0);
-    signal rx_seq_next : unsigned(15 downto 0);
-    signal rx_len_next : unsigned(15 downto 0);
     -- strobes
     signal rx_done_q  : std_logic;
     signal rx_reply_q : std_logic;
@@ -454,9 +354,8 @@ architecture rtl of omni_engine is
     -- ---------------------------------------------------------------------------------------------
     -- Feasibility (omni_feasibility: worst-case bits of one cycle, the cycle fits the period)
     -- ---------------------------------------------------------------------------------------------
-    signal f_bits    : std_logic_vector(15 downto 0);
-    signal feasible  : std_logic;
-    signal s_dlc_vec : std_logic_vector(4 * N_SLOTS - 1 downto 0);
+    signal f_bits   : std_logic_vector(15 downto 0);
+    signal feasible : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Host window
@@ -684,35 +583,10 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Receive classification
     -- ---------------------------------------------------------------------------------------------
-    -- slot search on the frame being handed over (registered with it: the compares of the
-    -- node table are not in the path of the classification and the SEQ / LEN_ERR update)
-    slot_match_proc : process (rx_data_i, rx_id_i, s_fc, s_node, s_valid) is
-    begin
-
-        mi_fb_any  <= '0';
-        mi_fb_idx  <= 0;
-        mi_rep_any <= '0';
-        mi_rep_idx <= 0;
-
-        for k in N_SLOTS - 1 downto 0 loop
-
-            if s_valid(k) = '1' and s_node(k) = rx_data_i(7 downto 0)
-               and s_fc(k) = rx_id_i(10 downto 8) then
-                mi_fb_any <= '1';
-                mi_fb_idx <= k;
-            end if;
-
-            if s_valid(k) = '1' and s_node(k) = rx_id_i(7 downto 0) then
-                mi_rep_any <= '1';
-                mi_rep_idx <= k;
-            end if;
-
-        end loop;
-
-    end process slot_match_proc;
-
-    match_proc : process (enable_i, m_fb_any, m_fb_idx, m_len, m_rep_any, m_seq, master_id,
-                          rx_dlc_i, rx_id_i, rx_rtr_i, rx_st, s_dlc) is
+    -- the node table searches its slots at the hand-over (registered with the frame) and
+    -- compares the matched slot's DLC in the match cycle
+    match_proc : process (enable_i, master_id, nt_dlc_ok, nt_fb_hit, nt_rep_hit, rx_dlc_i, rx_id_i,
+                          rx_rtr_i, rx_st) is
 
         variable fc_v   : std_logic_vector(2 downto 0);
         variable node_v : std_logic_vector(7 downto 0);
@@ -735,25 +609,17 @@ begin
             if rx_rtr_i = '1' then
                 if rx_id_i = "000" & x"00" then
                     c_query <= '1';
-                elsif fc_v = fc_nmt_c and m_rep_any = '1' then
+                elsif fc_v = fc_nmt_c and nt_rep_hit = '1' then
                     c_reply <= '1';
                 else
                     c_unexp <= '1';
                 end if;
-            elsif pd_v and node_v = master_id and rx_dlc_i /= x"0" and m_fb_any = '1' then
-
-                for k in 0 to N_SLOTS - 1 loop
-
-                    if m_fb_idx = k then
-                        if s_dlc(k) = rx_dlc_i then
-                            c_store <= '1';
-                        else
-                            c_len <= '1';
-                        end if;
-                    end if;
-
-                end loop;
-
+            elsif pd_v and node_v = master_id and rx_dlc_i /= x"0" and nt_fb_hit = '1' then
+                if nt_dlc_ok = '1' then
+                    c_store <= '1';
+                else
+                    c_len <= '1';
+                end if;
             elsif fc_v = fc_param_c and node_v = master_id
                   and unsigned(rx_dlc_i) >= param_min_c then
                 c_param <= '1';
@@ -761,9 +627,6 @@ begin
                 c_unexp <= '1';
             end if;
         end if;
-
-        rx_seq_next <= m_seq + 1;
-        rx_len_next <= sat_inc(m_len);
 
     end process match_proc;
 
@@ -832,15 +695,11 @@ begin
 
         variable pend_v    : std_logic;
         variable ts_v      : std_logic;
-        variable miss_v    : std_logic_vector(N_SLOTS - 1 downto 0);
         variable inc_v     : inc_arr_t;
         variable amt_v     : unsigned(inc_w_c - 1 downto 0);
-        variable new_v     : std_logic;
-        variable w_slot    : natural range 0 to 7;
         variable run_v     : boolean;
         variable fire_sync : boolean;
         variable poll_now  : boolean;
-        variable qmiss_v   : std_logic_vector(N_SLOTS - 1 downto 0);
         variable bd_v      : std_logic;
         variable qd_v      : std_logic;
         variable rd_v      : std_logic;
@@ -875,30 +734,13 @@ begin
             tx_st      <= S_IDLE;
             tx_kind    <= K_PARAM;
             tx_req     <= '0';
-            s_node     <= (others => (others => '0'));
-            s_fc       <= (others => (others => '0'));
-            s_dlc      <= (others => (others => '0'));
-            s_valid    <= (others => '0');
-            s_new      <= (others => '0');
-            s_ok       <= (others => '0');
-            s_got      <= (others => '0');
-            miss_ev    <= (others => '0');
-            alive      <= (others => '0');
-            missing    <= (others => '0');
             q_open     <= '0';
             q_cnt      <= (others => '0');
             q_eval     <= '0';
-            sel_slot   <= 0;
-            snap_new   <= '0';
-            snap_ok    <= '0';
             pmb_new    <= '0';
             pmb_ovr    <= '0';
             pmb_any    <= '0';
             rx_st      <= S_RX_IDLE;
-            m_fb_any   <= '0';
-            m_fb_idx   <= 0;
-            m_rep_any  <= '0';
-            m_rep_idx  <= 0;
             rx_done_q  <= '0';
             rx_reply_q <= '0';
             rx_unexp_q <= '0';
@@ -931,10 +773,8 @@ begin
             pending <= pend_v;
 
             -- ------------------------------------------------------------------- cycle instant
-            miss_v    := (others => '0');
             fire_sync := false;
             poll_now  := false;
-            qmiss_v   := s_valid and not alive;
             if not run_v then
                 cyc_cnt    <= (others => '0');
                 kmod       <= (others => '0');
@@ -959,9 +799,6 @@ begin
                     pmod <= (others => '0');
                 else
                     pmod <= pmod + 1;
-                end if;
-                if first_seen = '1' then
-                    miss_v := s_valid and not s_got;
                 end if;
                 fire_sync := ts_v = '1';
                 poll_now  := m_reg /= 0 and pmod = 0;
@@ -1027,7 +864,7 @@ begin
             if c_query = '1' then
                 rd_v := '1';
             end if;
-            if q_eval = '1' and stop_miss = '1' and qmiss_v /= zero_slots_c then
+            if q_eval = '1' and stop_miss = '1' and nt_qmiss_any = '1' then
                 sd_v := '1';
             end if;
             if wr_nmt = '1' and run_v then
@@ -1113,10 +950,10 @@ begin
             q_eval <= '0';
             if not run_v then
                 q_open <= '0';
-            elsif tx_st = S_WAIT and tx_ack_i = '1' and tx_kind = K_QUERY then
-                -- the window starts at the query's tx_ack_i (a tick at this edge is not counted)
+            elsif q_start = '1' then
+                -- the window starts at the query's tx_ack_i (a tick at this edge is not counted;
+                -- the node table clears ALIVE)
                 q_open <= '1';
-                alive  <= (others => '0');
                 if qwin_reg = 0 then
                     q_cnt <= to_unsigned(1, 16);
                 else
@@ -1132,10 +969,10 @@ begin
             end if;
 
             if q_eval = '1' then
-                if qmiss_v /= zero_slots_c then
+                if nt_qmiss_any = '1' then
                     ev_q <= '1';
                 end if;
-                inc_v(cnt_nmiss_c) := ones(qmiss_v);
+                inc_v(cnt_nmiss_c) := to_integer(unsigned(nt_qmiss_cnt));
             end if;
 
             -- --------------------------------------------------------------------- receiver
@@ -1145,11 +982,7 @@ begin
                 when S_RX_IDLE =>
 
                     if rx_valid_i = '1' then
-                        rx_st     <= S_RX_MATCH;
-                        m_fb_any  <= mi_fb_any;
-                        m_fb_idx  <= mi_fb_idx;
-                        m_rep_any <= mi_rep_any;
-                        m_rep_idx <= mi_rep_idx;
+                        rx_st <= S_RX_MATCH;
                     end if;
 
                 when S_RX_MATCH =>
@@ -1214,80 +1047,7 @@ begin
             end if;
 
             -- ------------------------------------------------------------------- node table
-            inc_v(cnt_miss_c) := ones(miss_v);
-            -- per-slot MISSED: to the slot counter sweep (a clear drops its own cycle's events)
-            miss_ev <= miss_v;
-            if clr = '1' then
-                miss_ev <= (others => '0');
-            end if;
-
-            if wr_sel = '1' then
-                w_slot   := to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto
-                                                            OMNI_SEL_SLOT_LO_C)));
-                sel_slot <= w_slot;
-                snap_new <= '0';
-                snap_ok  <= '0';
-
-                for k in 0 to N_SLOTS - 1 loop
-
-                    if w_slot = k then
-                        snap_new <= s_new(k);
-                        snap_ok  <= s_ok(k);
-                    end if;
-
-                end loop;
-
-            end if;
-
-            for k in 0 to N_SLOTS - 1 loop
-
-                new_v := s_new(k);
-
-                if wr_scfg = '1' and sel_slot = k then
-                    s_node(k)  <= reg_wdata_i(OMNI_SLOT_CFG_NODE_HI_C downto
-                                              OMNI_SLOT_CFG_NODE_LO_C);
-                    s_fc(k)    <= reg_wdata_i(OMNI_SLOT_CFG_FC_HI_C downto OMNI_SLOT_CFG_FC_LO_C);
-                    s_valid(k) <= reg_wdata_i(OMNI_SLOT_CFG_VALID_C);
-                    s_dlc(k)   <= reg_wdata_i(OMNI_SLOT_CFG_DLC_HI_C downto
-                                              OMNI_SLOT_CFG_DLC_LO_C);
-                    -- the current cycle is not checked after a configuration write
-                    s_got(k) <= '1';
-                elsif cycle_i = '1' and run_v and en_q = '1' then
-                    -- the cycle closes first: a feedback in the same cycle counts for the next
-                    s_got(k) <= '0';
-                    if c_store = '1' and m_fb_idx = k then
-                        s_got(k) <= '1';
-                    end if;
-                elsif c_store = '1' and m_fb_idx = k then
-                    s_got(k) <= '1';
-                end if;
-
-                -- NEW: OMNI_SEL.ACK with the selection or OMNI_FB_NEW written 1, then reception
-                if (wr_sel = '1' and reg_wdata_i(OMNI_SEL_ACK_C) = '1'
-                    and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)) = k)
-                   or (wr_fbnew = '1' and reg_wdata_i(k) = '1') then
-                    new_v := '0';
-                end if;
-
-                if c_store = '1' and m_fb_idx = k then
-                    s_ok(k) <= '1';
-                    new_v   := '1';
-                end if;
-
-                s_new(k) <= new_v;
-
-                if c_reply = '1' and m_rep_idx = k and q_open = '1' then
-                    alive(k) <= '1';
-                end if;
-
-                if wr_miss = '1' and reg_wdata_i(k) = '1' then
-                    missing(k) <= '0';
-                end if;
-                if q_eval = '1' and s_valid(k) = '1' and alive(k) = '0' then
-                    missing(k) <= '1';
-                end if;
-
-            end loop;
+            inc_v(cnt_miss_c) := to_integer(unsigned(nt_miss_cnt));
 
             -- -------------------------------------------------------------------- counters
 
@@ -1389,190 +1149,57 @@ begin
     end process data_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Feedback RAM: written at a store, read at the host's select (snapshot)
+    -- Node table: slots, slot search, feedback RAM, slot counters, flags (omni_node_table)
     -- ---------------------------------------------------------------------------------------------
-    fr_we <= c_store;
-    fr_wa <= m_fb_idx;
-    fr_wd <= std_logic_vector(cyc_cnt) & std_logic_vector(rx_seq_next)
-             & keep_bytes(rx_data_i, rx_dlc_i);
-    fr_re <= '1' when wr_sel = '1'
-                      and unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C))
-                      < N_SLOTS else
-             '0';
-    fr_ra <= to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)))
-             when fr_re = '1' else
-             0;
+    nt_hand  <= '1' when rx_st = S_RX_IDLE and rx_valid_i = '1' else
+                '0';
+    nt_close <= cycle_i and enable_i and en_q;
+    nt_check <= nt_close and first_seen;
+    q_start  <= '1' when enable_i = '1' and tx_st = S_WAIT and tx_ack_i = '1'
+                         and tx_kind = K_QUERY else
+                '0';
 
-    fram_proc : process (clk_i) is
-    begin
-
-        if rising_edge(clk_i) then
-            if fr_we = '1' then
-                fram(fr_wa) <= fr_wd;
-            end if;
-            if fr_re = '1' then
-                fr_q <= fram(fr_ra);
-            end if;
-        end if;
-
-    end process fram_proc;
-
-    -- ---------------------------------------------------------------------------------------------
-    -- Slot counters: SEQ, LEN_ERR and MISSED of every slot in block RAM (docs/omni_engine.md)
-    -- ---------------------------------------------------------------------------------------------
-    -- word layout: SEQ 15..0, LEN_ERR 31..16, MISSED 47..32. The match cycle writes the
-    -- matched slot's word (a stored frame SEQ + 1, a length error LEN_ERR + 1 saturating;
-    -- MISSED as read at the hand-over), the sweep a slot's MISSED + its pending count (SEQ and
-    -- LEN_ERR as read by the sweep); the sweep keeps off the port in the hand-over and match
-    -- cycles, so neither write loses the other's fields
-    sc_hand <= '1' when rx_st = S_RX_IDLE and rx_valid_i = '1' else
-               '0';
-    sc_mwe  <= c_store or c_len;
-    sw_free <= not (sc_hand or sc_mwe);
-    sw_we   <= '1' when sw_ph = '1' and sw_free = '1' and sw_pend /= 0 else
-               '0';
-    sw_miss <= std_logic_vector(sat_add(unsigned(sc_q(47 downto 32))
-                                        and (15 downto 0 => not sw_stale),
-                                        to_integer(sw_pend)));
-
-    sc_we <= sc_mwe or sw_we;
-    sc_wa <= m_fb_idx when sc_mwe = '1' else
-             sw_slot;
-    sc_wd <= sc_q(47 downto 32) & std_logic_vector(m_len) & std_logic_vector(rx_seq_next)
-             when c_store = '1' else
-             sc_q(47 downto 32) & std_logic_vector(rx_len_next) & std_logic_vector(m_seq)
-             when c_len = '1' else
-             sw_miss & sc_q(31 downto 0);
-    sc_ra <= mi_fb_idx when sc_hand = '1' else
-             sw_slot;
-
-    -- the match cycle works on the word read at the hand-over edge
-    m_seq <= unsigned(sc_q(15 downto 0)) when m_seq_ok = '1' else
-             (others => '0');
-    m_len <= unsigned(sc_q(31 downto 16)) when m_len_ok = '1' else
-             (others => '0');
-
-    sc_ram_inst : entity work.canopen_sdp_ram
+    node_table_inst : entity work.omni_node_table
         generic map (
-            DEPTH => N_SLOTS,
-            WIDTH => 48
+            N_SLOTS => N_SLOTS
         )
         port map (
-            clk_i   => clk_i,
-            we_i    => sc_we,
-            waddr_i => sc_wa,
-            wdata_i => sc_wd,
-            re_i    => '1',
-            raddr_i => sc_ra,
-            rdata_o => sc_q
+            clk_i         => clk_i,
+            rst_n_i       => rst_n_i,
+            wr_sel_i      => wr_sel,
+            wr_scfg_i     => wr_scfg,
+            wr_fbnew_i    => wr_fbnew,
+            wr_miss_i     => wr_miss,
+            wdata_i       => reg_wdata_i,
+            clr_i         => clr,
+            reg_addr_i    => reg_addr_i,
+            rd_word_o     => nt_rd_word,
+            cycle_close_i => nt_close,
+            cycle_check_i => nt_check,
+            cyc_cnt_i     => std_logic_vector(cyc_cnt),
+            miss_cnt_o    => nt_miss_cnt,
+            hand_i        => nt_hand,
+            rx_id_i       => rx_id_i,
+            rx_dlc_i      => rx_dlc_i,
+            rx_data_i     => rx_data_i,
+            fb_hit_o      => nt_fb_hit,
+            fb_dlc_ok_o   => nt_dlc_ok,
+            rep_hit_o     => nt_rep_hit,
+            store_i       => c_store,
+            len_err_i     => c_len,
+            reply_i       => c_reply,
+            q_start_i     => q_start,
+            q_open_i      => q_open,
+            q_eval_i      => q_eval,
+            qmiss_any_o   => nt_qmiss_any,
+            qmiss_cnt_o   => nt_qmiss_cnt,
+            slot_valid_o  => s_valid,
+            slot_dlc_o    => s_dlc_vec
         );
-
-    -- the host's selection as of the next edge (a slot number >= N_SLOTS reads 0)
-    hsel_next <= to_integer(unsigned(reg_wdata_i(OMNI_SEL_SLOT_HI_C downto OMNI_SEL_SLOT_LO_C)))
-                 when wr_sel = '1' else
-                 sel_slot;
-    hsel_ra   <= hsel_next when hsel_next < N_SLOTS else
-                 0;
-
-    hc_ram_inst : entity work.canopen_sdp_ram
-        generic map (
-            DEPTH => N_SLOTS,
-            WIDTH => 32
-        )
-        port map (
-            clk_i   => clk_i,
-            we_i    => sc_we,
-            waddr_i => sc_wa,
-            wdata_i => sc_wd(47 downto 16),
-            re_i    => '1',
-            raddr_i => hsel_ra,
-            rdata_o => hc_q
-        );
-
-    slot_cnt_proc : process (clk_i, rst_n_i) is
-
-        variable p_v : unsigned(1 downto 0);
-
-    begin
-
-        if rst_n_i = '0' then
-            len_stale  <= (others => '1');
-            miss_stale <= (others => '1');
-            miss_pend  <= (others => (others => '0'));
-            sw_slot    <= 0;
-            sw_ph      <= '0';
-            sw_stale   <= '1';
-            sw_pend    <= (others => '0');
-            m_seq_ok   <= '0';
-            m_len_ok   <= '0';
-            hl_ok      <= '0';
-            hm_ok      <= '0';
-        elsif rising_edge(clk_i) then
-            -- validity of the words read at this edge (as before this edge's writes)
-            if sc_hand = '1' then
-                m_seq_ok <= s_ok(mi_fb_idx);
-                m_len_ok <= not (len_stale(mi_fb_idx) or clr);
-            end if;
-            hl_ok <= '0';
-            hm_ok <= '0';
-            if hsel_next < N_SLOTS then
-                hl_ok <= not len_stale(hsel_ra);
-                hm_ok <= not miss_stale(hsel_ra);
-            end if;
-
-            -- sweep: phase 0 reads sw_slot, phase 1 writes it and moves on; a cycle in which
-            -- the match uses the port, or a clear, sends it back to phase 0 (read again)
-            if sw_ph = '0' then
-                sw_stale <= miss_stale(sw_slot);
-                sw_pend  <= miss_pend(sw_slot);
-            end if;
-            sw_ph <= '0';
-            if sw_free = '1' and clr = '0' then
-                sw_ph <= not sw_ph;
-                if sw_ph = '1' then
-                    if sw_slot = N_SLOTS - 1 then
-                        sw_slot <= 0;
-                    else
-                        sw_slot <= sw_slot + 1;
-                    end if;
-                end if;
-            end if;
-
-            for k in 0 to N_SLOTS - 1 loop
-
-                if sc_mwe = '1' and m_fb_idx = k then
-                    len_stale(k) <= '0';
-                end if;
-
-                p_v := miss_pend(k);
-                if sw_we = '1' and sw_slot = k then
-                    miss_stale(k) <= '0';
-                    p_v           := p_v - sw_pend;
-                end if;
-                if miss_ev(k) = '1' and p_v /= 3 then
-                    p_v := p_v + 1;
-                end if;
-                miss_pend(k) <= p_v;
-
-                if clr = '1' then
-                    len_stale(k)  <= '1';
-                    miss_stale(k) <= '1';
-                    miss_pend(k)  <= (others => '0');
-                end if;
-
-            end loop;
-
-        end if;
-
-    end process slot_cnt_proc;
 
     -- ---------------------------------------------------------------------------------------------
     -- Feasibility: worst-case bits of one cycle against the period (omni_feasibility)
     -- ---------------------------------------------------------------------------------------------
-
-    s_dlc_gen : for k in 0 to N_SLOTS - 1 generate
-        s_dlc_vec(4 * k + 3 downto 4 * k) <= s_dlc(k);
-    end generate s_dlc_gen;
 
     feas_inst : entity work.omni_feasibility
         generic map (
@@ -1595,136 +1222,69 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Read multiplexer (registered: the data of reg_addr_i is on reg_rdata_o one cycle later)
     -- ---------------------------------------------------------------------------------------------
-    read_mux_proc : process (alive, bc4x2, cfg_err, cyc_cnt, enable_i, f_bits, feasible, fr_q,
-                             hc_q, hl_ok, hm_ok, k_reg, m_reg, master_id, missing, n_axes,
-                             nmt_due, par_dlc, par_due, par_hi, par_lo, par_node, par_type, pending,
-                             pmb_any, pmb_dlc, pmb_hi, pmb_lo, pmb_new, pmb_ovr, pmb_sender,
-                             pmb_type, q_open, qwin_reg, reg_addr_i, s_dlc, s_fc, s_new, s_node,
-                             s_valid, sel_slot, sender, snap_new, snap_ok, staging, stop_due,
-                             stop_miss, sync_mode) is
+    read_mux_proc : process (bc4x2, cfg_err, cyc_cnt, enable_i, f_bits, feasible, k_reg, m_reg,
+                             master_id, n_axes, nmt_due, nt_rd_word, par_dlc, par_due, par_hi,
+                             par_lo, par_node, par_type, pending, pmb_any, pmb_dlc, pmb_hi, pmb_lo,
+                             pmb_new, pmb_ovr, pmb_sender, pmb_type, q_open, qwin_reg, reg_addr_i,
+                             sender, staging, stop_due, stop_miss, sync_mode) is
 
         variable a : std_logic_vector(5 downto 0);
         variable v : std_logic_vector(31 downto 0);
-        -- node-ID of the lowest missing slot (0: none)
-        variable miss_node : std_logic_vector(7 downto 0);
-
-        -- AND-OR form (not a chain of conditional assignments): the synthesis tree stays
-        -- balanced
-
-        procedure put (n : natural; word : std_logic_vector(31 downto 0)) is
-
-            variable m : std_logic_vector(31 downto 0);
-
-        begin
-
-            m := (others => '0');
-
-            if is_off(a, n) then
-                m := (others => '1');
-            end if;
-
-            v := v or (word and m);
-
-        end procedure put;
 
     begin
 
         a := reg_addr_i;
-        v := (others => '0');
+        -- the node table's registers (OMNI_SEL, OMNI_SLOT_CFG, OMNI_SLOT_ERR, OMNI_FB_*,
+        -- OMNI_FB_NEW, OMNI_ALIVE, OMNI_MISSING): its read data, 0 at the other offsets
+        v := nt_rd_word;
 
-        put(off_info_c, at(std_logic_vector(to_unsigned(N_SLOTS, 4)), OMNI_INFO_N_SLOTS_HI_C,
-                           OMNI_INFO_N_SLOTS_LO_C));
-        put(off_cfg_c,
+        put(v, a, off_info_c,
+            at(std_logic_vector(to_unsigned(N_SLOTS, 4)), OMNI_INFO_N_SLOTS_HI_C,
+                  OMNI_INFO_N_SLOTS_LO_C));
+        put(v, a, off_cfg_c,
             at(master_id, OMNI_CFG_MASTER_ID_HI_C, OMNI_CFG_MASTER_ID_LO_C)
             or at(n_axes, OMNI_CFG_N_AXES_HI_C, OMNI_CFG_N_AXES_LO_C)
             or at(bc4x2, OMNI_CFG_BCAST_4X2_C) or at(sender, OMNI_CFG_SENDER_C)
             or at(sync_mode, OMNI_CFG_SYNC_MODE_C) or at(stop_miss, OMNI_CFG_STOP_ON_MISSING_C));
-        put(off_stat_c,
+        put(v, a, off_stat_c,
             at(pending, OMNI_STATUS_PENDING_C) or at(not feasible, OMNI_STATUS_INFEASIBLE_C)
             or at(cfg_err, OMNI_STATUS_CFG_ERR_C) or at(nmt_due, OMNI_STATUS_NMT_BUSY_C)
             or at(par_due, OMNI_STATUS_PARAM_BUSY_C) or at(q_open, OMNI_STATUS_QUERY_OPEN_C)
             or at(stop_due, OMNI_STATUS_STOP_DUE_C) or at(enable_i, OMNI_STATUS_ENABLED_C));
-        put(off_k_c, at(std_logic_vector(k_reg), OMNI_SYNC_K_K_HI_C, OMNI_SYNC_K_K_LO_C));
-        put(off_poll_c, at(std_logic_vector(m_reg), OMNI_POLL_M_HI_C, OMNI_POLL_M_LO_C));
-        put(off_qwin_c,
+        put(v, a, off_k_c, at(std_logic_vector(k_reg), OMNI_SYNC_K_K_HI_C, OMNI_SYNC_K_K_LO_C));
+        put(v, a, off_poll_c, at(std_logic_vector(m_reg), OMNI_POLL_M_HI_C, OMNI_POLL_M_LO_C));
+        put(v, a, off_qwin_c,
             at(std_logic_vector(qwin_reg), OMNI_QUERY_WIN_US_HI_C, OMNI_QUERY_WIN_US_LO_C));
-        put(off_cycle_c,
+        put(v, a, off_cycle_c,
             at(std_logic_vector(cyc_cnt), OMNI_CYCLE_COUNT_HI_C, OMNI_CYCLE_COUNT_LO_C));
 
         for i in 0 to 3 loop
 
-            put(off_sp_c + i,
+            put(v, a, off_sp_c + i,
                 at(staging(2 * i), OMNI_SP01_AXIS0_HI_C, OMNI_SP01_AXIS0_LO_C)
                 or at(staging(2 * i + 1), OMNI_SP01_AXIS1_HI_C, OMNI_SP01_AXIS1_LO_C));
 
         end loop;
 
-        put(off_phdr_c,
+        put(v, a, off_phdr_c,
             at(par_node, OMNI_PARAM_HDR_NODE_HI_C, OMNI_PARAM_HDR_NODE_LO_C)
             or at(par_type, OMNI_PARAM_HDR_TYPE_HI_C, OMNI_PARAM_HDR_TYPE_LO_C)
             or at(par_dlc, OMNI_PARAM_HDR_DLC_HI_C, OMNI_PARAM_HDR_DLC_LO_C));
-        put(off_plo_c, par_lo);
-        put(off_phi_c, at(par_hi, OMNI_PARAM_HI_DATA_HI_C, OMNI_PARAM_HI_DATA_LO_C));
-        put(off_sel_c,
-            at(std_logic_vector(to_unsigned(sel_slot, 3)), OMNI_SEL_SLOT_HI_C, OMNI_SEL_SLOT_LO_C)
-            or at(snap_new, OMNI_SEL_NEW_C));
-
-        for k in 0 to N_SLOTS - 1 loop
-
-            if sel_slot = k then
-                put(off_scfg_c,
-                    at(s_node(k), OMNI_SLOT_CFG_NODE_HI_C, OMNI_SLOT_CFG_NODE_LO_C)
-                    or at(s_fc(k), OMNI_SLOT_CFG_FC_HI_C, OMNI_SLOT_CFG_FC_LO_C)
-                    or at(s_valid(k), OMNI_SLOT_CFG_VALID_C)
-                    or at(s_dlc(k), OMNI_SLOT_CFG_DLC_HI_C, OMNI_SLOT_CFG_DLC_LO_C));
-            end if;
-
-        end loop;
-
-        -- the slot counters' host copies (read at the selection, 0 for no slot or a stale word)
-        put(off_serr_c,
-            at(hc_q(15 downto 0) and (15 downto 0 => hl_ok), OMNI_SLOT_ERR_LEN_ERR_HI_C,
-               OMNI_SLOT_ERR_LEN_ERR_LO_C)
-            or at(hc_q(31 downto 16) and (15 downto 0 => hm_ok), OMNI_SLOT_ERR_MISSED_HI_C,
-                  OMNI_SLOT_ERR_MISSED_LO_C));
-
-        -- the snapshot of the selected slot (sel_slot < N_SLOTS when snap_ok = 1)
-        if snap_ok = '1' then
-            put(off_fblo_c, fr_q(31 downto 0));
-            put(off_fbhi_c, fr_q(63 downto 32));
-            put(off_fbinfo_c,
-                at(fr_q(79 downto 64), OMNI_FB_INFO_SEQ_HI_C, OMNI_FB_INFO_SEQ_LO_C)
-                or at(fr_q(95 downto 80), OMNI_FB_INFO_CYCLE_HI_C, OMNI_FB_INFO_CYCLE_LO_C));
-        end if;
-
-        put(off_fbnew_c, at(s_new, N_SLOTS - 1, 0));
-        put(off_alive_c, at(alive, N_SLOTS - 1, 0));
-        miss_node := (others => '0');
-
-        for k in N_SLOTS - 1 downto 0 loop
-
-            if missing(k) = '1' then
-                miss_node := s_node(k);
-            end if;
-
-        end loop;
-
-        put(off_miss_c,
-            at(missing, N_SLOTS - 1, 0)
-            or at(miss_node, OMNI_MISSING_NODE_HI_C, OMNI_MISSING_NODE_LO_C));
-        put(off_pmbi_c, at(pmb_ovr, OMNI_PMB_INFO_OVERRUN_C) or at(pmb_new, OMNI_PMB_INFO_NEW_C));
+        put(v, a, off_plo_c, par_lo);
+        put(v, a, off_phi_c, at(par_hi, OMNI_PARAM_HI_DATA_HI_C, OMNI_PARAM_HI_DATA_LO_C));
+        put(v, a, off_pmbi_c,
+            at(pmb_ovr, OMNI_PMB_INFO_OVERRUN_C) or at(pmb_new, OMNI_PMB_INFO_NEW_C));
 
         if pmb_any = '1' then
-            put(off_pmbi_c,
+            put(v, a, off_pmbi_c,
                 at(pmb_sender, OMNI_PMB_INFO_SENDER_HI_C, OMNI_PMB_INFO_SENDER_LO_C)
                 or at(pmb_type, OMNI_PMB_INFO_TYPE_HI_C, OMNI_PMB_INFO_TYPE_LO_C)
                 or at(pmb_dlc, OMNI_PMB_INFO_DLC_HI_C, OMNI_PMB_INFO_DLC_LO_C));
-            put(off_pmblo_c, pmb_lo);
-            put(off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
+            put(v, a, off_pmblo_c, pmb_lo);
+            put(v, a, off_pmbhi_c, at(pmb_hi, OMNI_PMB_HI_DATA_HI_C, OMNI_PMB_HI_DATA_LO_C));
         end if;
 
-        put(off_bits_c, at(f_bits, OMNI_BUS_BITS_BITS_HI_C,
-                           OMNI_BUS_BITS_BITS_LO_C));
+        put(v, a, off_bits_c, at(f_bits, OMNI_BUS_BITS_BITS_HI_C, OMNI_BUS_BITS_BITS_LO_C));
 
         rd_mux <= v;
 
