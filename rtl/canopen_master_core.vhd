@@ -14,10 +14,12 @@
 --     interleave), canopen_node_monitor (St7/St10: heartbeat, guarding, boot-up, EMCY),
 --     canopen_autoconfig (the SDO configuration list; owns SDO channel 0 while it runs, its NMT
 --     starts wait in their own register and go out in St10).
---   * Datapath (this file): timebase (us/ms), SYNC producer, Receive_Data register and COB-ID
---     classifier (St3/St4), generation-source selection and Transmit_Data with the TX buffer
---     plan (St8..St11), the controller request (St12), error latch (St13), state watchdog
---     (bounded waits), controller re-initialisation (St0), event and counter strobes.
+--   * canopen_sync_timebase: timebase (us/ms), SYNC producer, synchronous window.
+--   * canopen_fault_supervisor: error latch (St13), state watchdog (bounded waits), controller
+--     re-initialisation (St0), CAN status snapshot.
+--   * Datapath (this file): Receive_Data register and COB-ID classifier (St3/St4),
+--     generation-source selection and Transmit_Data with the TX buffer plan (St8..St11), the
+--     controller request (St12), event and counter strobes.
 --   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
 --   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation (also a reply of St5..St7, St13) is
@@ -113,14 +115,8 @@ end entity canopen_master_core;
 architecture rtl of canopen_master_core is
 
     -- ---------------------------------------------------------------------------------------------
-    -- Timing constants
+    -- Configuration check and constants
     -- ---------------------------------------------------------------------------------------------
-    constant backoff_us_c : positive := 1000 * REINIT_BACKOFF_MS;
-    -- bus-off: the MCP2510 returns to error-active by itself after 128 x 11 recessive bits;
-    -- on a loaded bus one such sequence ends each frame, so 128 longest frames (160 bits)
-    -- bound it. Only a chip still bus-off after that is re-initialised (G1).
-    constant busoff_us_c : positive := (128 * 160 * 1000 + CAN_BITRATE_BPS / 1000 - 1)
-                                       / (CAN_BITRATE_BPS / 1000);
 
     function check_config return boolean is
     begin
@@ -282,29 +278,22 @@ architecture rtl of canopen_master_core is
     signal sync_period_half : unsigned(31 downto 0);
     -- sync_fire one cycle later: the TX2RTS pulse is in flight, TXB2 not yet shown pending
     signal sync_fire_q : std_logic;
-    -- error latch (St13)
-    signal err_can    : std_logic;
-    signal err_busoff : std_logic;
-    signal err_reinit : std_logic;
-    signal err_node   : std_logic;
-    -- the controller found the chip reset behind its back (CANSTAT.OPMOD not normal) and
-    -- re-initialises it by itself: St13 reports it, St0 (G1) waits for init_done without
-    -- asking for another RESET (chip_reinit, until St0 is entered)
-    signal err_chip    : std_logic;
-    signal chip_reinit : std_logic;
-    -- state watchdog and St0 re-initialisation
-    signal wd_us        : natural range 0 to WATCHDOG_US;
-    signal backoff_us   : natural range 0 to backoff_us_c;
-    signal busoff_us    : natural range 0 to busoff_us_c;
-    signal reinit_pulse : std_logic;
-    -- a re-initialisation was requested and the controller has not restarted yet: St0 must
-    -- not leave on the init_done of the previous initialisation
-    signal reinit_wait   : std_logic;
+    -- fault supervisor (canopen_fault_supervisor): error latch (St13), re-initialisation
+    -- (St0), init_done as the FSM sees it, CAN status snapshot for the host; its inputs that
+    -- VHDL-93 cannot compute in the port map
+    signal err_can       : std_logic;
+    signal err_busoff    : std_logic;
+    signal err_reinit    : std_logic;
+    signal err_node      : std_logic;
+    signal err_chip      : std_logic;
     signal init_done_fsm : std_logic;
-    -- CAN status snapshot for the host
-    signal can_tec  : std_logic_vector(7 downto 0);
-    signal can_rec  : std_logic_vector(7 downto 0);
-    signal can_eflg : std_logic_vector(7 downto 0);
+    signal can_tec       : std_logic_vector(7 downto 0);
+    signal can_rec       : std_logic_vector(7 downto 0);
+    signal can_eflg      : std_logic_vector(7 downto 0);
+    signal fs_errif      : std_logic;
+    signal fs_rx_ovf     : std_logic;
+    signal fs_tx_fault   : std_logic;
+    signal fs_node_err   : std_logic;
     -- St3 pop
     signal rx_pop : std_logic;
     -- entry strobes into the processing states
@@ -488,8 +477,6 @@ architecture rtl of canopen_master_core is
     -- host view of the error-passive state (EFLG RXEP or TXEP) and of the node events
     signal can_err_passive : std_logic;
     signal host_ev_node    : std_logic;
-    signal init_done_q     : std_logic;
-    signal init_fail_q     : std_logic;
 
     -- ---------------------------------------------------------------------------------------------
     -- Host input validation (docs/register_map.md, REFUSED bits)
@@ -682,33 +669,14 @@ begin
             nmt_pending      <= '0';
             nmt_refused      <= '0';
             acfg_nmt_pending <= '0';
-            err_can          <= '0';
-            err_busoff       <= '0';
-            err_reinit       <= '0';
-            err_node         <= '0';
-            err_chip         <= '0';
-            chip_reinit      <= '0';
-            wd_us            <= 0;
-            backoff_us       <= 0;
-            busoff_us        <= 0;
-            reinit_pulse     <= '0';
-            reinit_wait      <= '0';
             sdo_tx_ack       <= '0';
             mon_tx_ack       <= '0';
             pdo_tx_ack       <= '0';
             sync_half        <= '0';
-            init_done_q      <= '0';
-            init_fail_q      <= '0';
-            can_tec          <= (others => '0');
-            can_rec          <= (others => '0');
-            can_eflg         <= (others => '0');
         elsif rising_edge(clk_i) then
-            reinit_pulse <= '0';
-            sdo_tx_ack   <= '0';
-            mon_tx_ack   <= '0';
-            pdo_tx_ack   <= '0';
-            init_done_q  <= ctl_init_done_i;
-            init_fail_q  <= ctl_init_fail_i;
+            sdo_tx_ack <= '0';
+            mon_tx_ack <= '0';
+            pdo_tx_ack <= '0';
             -- (split compare: two 16-bit halves side by side, canopen_util_pkg; registered, so
             -- the FSM's SYNC condition starts at a register)
             sync_half <= '1';
@@ -882,88 +850,55 @@ begin
             elsif sync_fire = '1' and txb0_sync = '1' and omni_en = '0' then
                 pdo_cancel_req <= not pdo_cancel_sent;
             end if;
-            -- error latch --------------------------------------------------------------------
-            if ctl_int_valid_i = '1' and ctl_int_canintf_i(intf_errif_c) = '1' then
-                err_can <= '1';
-            end if;
-            if ctl_rx_overflow_i /= "00" or ctl_tx_err_i /= "000" or ctl_tx_drop_i /= "000" then
-                err_can <= '1';
-            end if;
-            -- bus-off (EFLG.TXBO, shown in STATUS.BUS_OFF): wait for the chip's own recovery;
-            -- still bus-off after busoff_us_c -> re-initialise (St13 -> St0, G1), once
-            if can_eflg(eflg_txbo_c) = '0' or ctl_init_done_i = '0' then
-                busoff_us <= 0;
-            elsif tick_us = '1' and busoff_us = busoff_us_c - 1 then
-                busoff_us  <= busoff_us_c;
-                err_busoff <= '1';
-            elsif tick_us = '1' and busoff_us < busoff_us_c then
-                busoff_us <= busoff_us + 1;
-            end if;
-            if host_reinit = '1' then
-                err_reinit <= '1';
-            end if;
-            if ctl_chip_lost_i = '1' then
-                err_chip    <= '1';
-                chip_reinit <= '1';
-            end if;
-            if ev_lost /= (ev_lost'range => '0') or ev_toggle /= (ev_toggle'range => '0') then
-                err_node <= '1';
-            end if;
-            if in_error = '1' then
-                err_can    <= '0';
-                err_busoff <= '0';
-                err_reinit <= '0';
-                err_node   <= '0';
-                err_chip   <= '0';
-            end if;
-
-            -- state watchdog: bounded waits (G4) ----------------------------------------------
-            if state_change = '1' then
-                wd_us <= 0;
-            elsif tick_us = '1' and wd_us < WATCHDOG_US then
-                wd_us <= wd_us + 1;
-            end if;
-
-            -- St0: re-initialise the controller on entry from St13 (G1), and after a failed
-            -- initialisation once the back-off time has passed (T1) -------------------------
-            if in_init = '1' and state_change = '1' and init_done_q = '1'
-               and chip_reinit = '0' then
-                reinit_pulse <= '1';
-                reinit_wait  <= '1';
-            end if;
-            if in_init = '1' and state_change = '1' then
-                chip_reinit <= '0';
-            end if;
-            if reinit_wait = '1' and reinit_pulse = '0' and ctl_init_done_i = '0' then
-                reinit_wait <= '0';
-            end if;
-            if in_init = '1' and ctl_init_fail_i = '1' then
-                if backoff_us = backoff_us_c then
-                    backoff_us   <= 0;
-                    reinit_pulse <= '1';
-                elsif tick_us = '1' then
-                    backoff_us <= backoff_us + 1;
-                end if;
-            else
-                backoff_us <= 0;
-            end if;
-
-            -- TEC/REC/EFLG for the host: mcp2510_ctrl polls them every ERR_POLL_US and after
-            -- every error interrupt, and clears them with the chip's RESET ------------------
-            can_tec  <= ctl_tec_i;
-            can_rec  <= ctl_rec_i;
-            can_eflg <= ctl_eflg_i;
         end if;
 
     end process datapath_proc;
 
-    watchdog <= '1' when wd_us = WATCHDOG_US else '0';
+    -- ---------------------------------------------------------------------------------------------
+    -- Fault supervisor: error latch (St13), state watchdog, re-initialisation (St0), CAN status
+    -- ---------------------------------------------------------------------------------------------
+    fs_errif    <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
+    fs_rx_ovf   <= or_reduce(ctl_rx_overflow_i);
+    fs_tx_fault <= or_reduce(ctl_tx_err_i) or or_reduce(ctl_tx_drop_i);
+    fs_node_err <= or_reduce(ev_lost) or or_reduce(ev_toggle);
 
-    -- masked from the entry into St0 (G1) until the controller has dropped init_done
-    init_done_fsm <= ctl_init_done_i and not reinit_wait and not reinit_pulse
-                     and not (in_init and state_change);
-
-    ctl_reinit_o <= reinit_pulse;
+    fault_inst : entity work.canopen_fault_supervisor
+        generic map (
+            CAN_BITRATE_BPS   => CAN_BITRATE_BPS,
+            WATCHDOG_US       => WATCHDOG_US,
+            REINIT_BACKOFF_MS => REINIT_BACKOFF_MS
+        )
+        port map (
+            clk_i          => clk_i,
+            rst_n_i        => rst_n_i,
+            tick_us_i      => tick_us,
+            init_done_i    => ctl_init_done_i,
+            init_fail_i    => ctl_init_fail_i,
+            chip_lost_i    => ctl_chip_lost_i,
+            tec_i          => ctl_tec_i,
+            rec_i          => ctl_rec_i,
+            eflg_i         => ctl_eflg_i,
+            int_errif_i    => fs_errif,
+            rx_overflow_i  => fs_rx_ovf,
+            tx_fault_i     => fs_tx_fault,
+            host_reinit_i  => host_reinit,
+            node_error_i   => fs_node_err,
+            state_change_i => state_change,
+            in_init_i      => in_init,
+            in_error_i     => in_error,
+            err_can_o      => err_can,
+            err_busoff_o   => err_busoff,
+            err_reinit_o   => err_reinit,
+            err_node_o     => err_node,
+            err_chip_o     => err_chip,
+            watchdog_o     => watchdog,
+            reinit_o       => ctl_reinit_o,
+            init_done_o    => init_done_fsm,
+            tec_o          => can_tec,
+            rec_o          => can_rec,
+            eflg_o         => can_eflg,
+            ev_init_o      => ev_init
+        );
 
     -- St12: request towards mcp2510_ctrl
     ctl_tx_valid_o  <= in_tx and not tx_requested;
@@ -1003,8 +938,6 @@ begin
     cnt_malformed <= mon_rx_done and mon_rx_malformed;
     cnt_hb_loss   <= or_reduce(ev_lost);
     cnt_guard_err <= or_reduce(ev_toggle);
-    ev_init       <= (ctl_init_done_i and not init_done_q)
-                     or (ctl_init_fail_i and not init_fail_q);
 
     -- ---------------------------------------------------------------------------------------------
     -- The FSM
