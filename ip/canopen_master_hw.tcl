@@ -74,6 +74,7 @@ add_fileset_file mcp2510_instr.vhd        VHDL PATH ../rtl/mcp2510_instr.vhd
 add_fileset_file mcp2510_ctrl.vhd         VHDL PATH ../rtl/mcp2510_ctrl.vhd
 add_fileset_file canopen_sync_timebase.vhd VHDL PATH ../rtl/canopen_sync_timebase.vhd
 add_fileset_file canopen_fault_supervisor.vhd VHDL PATH ../rtl/canopen_fault_supervisor.vhd
+add_fileset_file canopen_tx_path.vhd      VHDL PATH ../rtl/canopen_tx_path.vhd
 add_fileset_file canopen_master_fsm.vhd   VHDL PATH ../rtl/canopen_master_fsm.vhd
 add_fileset_file canopen_host_regs.vhd    VHDL PATH ../rtl/canopen_host_regs.vhd
 add_fileset_file canopen_master_core.vhd  VHDL PATH ../rtl/canopen_master_core.vhd
@@ -105,6 +106,7 @@ add_fileset_file mcp2510_instr.vhd        VHDL PATH ../rtl/mcp2510_instr.vhd
 add_fileset_file mcp2510_ctrl.vhd         VHDL PATH ../rtl/mcp2510_ctrl.vhd
 add_fileset_file canopen_sync_timebase.vhd VHDL PATH ../rtl/canopen_sync_timebase.vhd
 add_fileset_file canopen_fault_supervisor.vhd VHDL PATH ../rtl/canopen_fault_supervisor.vhd
+add_fileset_file canopen_tx_path.vhd      VHDL PATH ../rtl/canopen_tx_path.vhd
 add_fileset_file canopen_master_fsm.vhd   VHDL PATH ../rtl/canopen_master_fsm.vhd
 add_fileset_file canopen_host_regs.vhd    VHDL PATH ../rtl/canopen_host_regs.vhd
 add_fileset_file canopen_master_core.vhd  VHDL PATH ../rtl/canopen_master_core.vhd

@@ -17,9 +17,10 @@
 --   * canopen_sync_timebase: timebase (us/ms), SYNC producer, synchronous window.
 --   * canopen_fault_supervisor: error latch (St13), state watchdog (bounded waits), controller
 --     re-initialisation (St0), CAN status snapshot.
---   * Datapath (this file): Receive_Data register and COB-ID classifier (St3/St4),
---     generation-source selection and Transmit_Data with the TX buffer plan (St8..St11), the
---     controller request (St12), event and counter strobes.
+--   * canopen_tx_path: generation sources (St2, St8..St10), Transmit_Data with the TX buffer
+--     plan (St11), the controller request (St12), SDO withdrawal and sync TPDO cancel.
+--   * Datapath (this file): Receive_Data register and COB-ID classifier (St3/St4), the FSM
+--     conditions, event and counter strobes.
 --   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
 --   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation (also a reply of St5..St7, St13) is
@@ -130,10 +131,6 @@ architecture rtl of canopen_master_core is
 
     constant config_ok_c : boolean := check_config;
 
-    -- MCP2510 buffer plan (see the header)
-    constant txb_pdo_c  : std_logic_vector(1 downto 0) := "00";
-    constant txb_cmd_c  : std_logic_vector(1 downto 0) := "01";
-    constant txb_sync_c : std_logic_vector(1 downto 0) := "10";
     -- EFLG bits
     constant eflg_txbo_c  : natural                      := 5;
     constant eflg_any_c   : std_logic_vector(7 downto 0) := x"3F";
@@ -223,44 +220,16 @@ architecture rtl of canopen_master_core is
     signal time_ms : std_logic_vector(31 downto 0);
     -- Receive_Data (thesis: 13-byte frame register filled in St3)
     signal rx_frame : can_frame_t;
-    -- Transmit_Data (thesis: frame register filled in St11) and its buffer plan
-    signal tx_frame     : can_frame_t;
-    signal tx_buf       : std_logic_vector(1 downto 0);
-    signal tx_txp       : std_logic_vector(1 downto 0);
-    signal tx_send      : std_logic;
-    signal tx_requested : std_logic;
-    -- TXB1 holds a request of an SDO transfer (not an abort frame), with this COB-ID; the frame
-    -- in St11/St12 is an SDO request (the SDO source's tx_abort_o = 0 when it was taken)
-    signal txb1_sdo_req : std_logic;
-    signal txb1_id      : std_logic_vector(10 downto 0);
-    signal tx_sdo_req   : std_logic;
-    -- an SDO transfer ended (canopen_sdo_channels wdr_req_o/wdr_id_o): its request waits in
-    -- TXB1 (cancel it), or an SDO frame is between St11 and TXB1 (wait), else withdrawn (ack)
-    signal sdo_cancel   : std_logic;
-    signal sdo_flight   : std_logic;
-    signal sdo_wdr_req  : std_logic;
-    signal sdo_wdr_id   : std_logic_vector(10 downto 0);
-    signal sdo_wdr_ack  : std_logic;
-    signal sdo_tx_abort : std_logic;
-    -- the cancel of TXB1 was asked for (until TXB1 is free), and the pulse towards the chip
-    signal cancel_sent  : std_logic;
-    signal cancel_pulse : std_logic;
-    -- TXB0 holds, or is being loaded with, a synchronous TPDO (the PDO engine's tx_sync_o when
-    -- the frame was taken): if a SYNC fires before it started it would go out after that SYNC,
-    -- in the next cycle, so it is cancelled (pdo_cancel_req until TXB0 is pending, then one
-    -- pulse) and, if the controller reports it cancelled, the engine counts it late
-    signal txb0_sync        : std_logic;
-    signal txb0_loading     : std_logic;
-    signal pdo_cancel_req   : std_logic;
-    signal pdo_cancel_sent  : std_logic;
-    signal pdo_cancel_pulse : std_logic;
-    -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO
-    signal gen_src : natural range 0 to 5;
-    -- host NMT command waiting
-    signal nmt_pending  : std_logic;
-    signal nmt_refused  : std_logic;
-    signal nmt_cmd_cs   : std_logic_vector(7 downto 0);
-    signal nmt_cmd_node : std_logic_vector(6 downto 0);
+    -- transmit path (canopen_tx_path): an SDO transfer ended (canopen_sdo_channels
+    -- wdr_req_o / wdr_id_o) and its acknowledge; the SDO frame is an abort; TXB0's cancelled
+    -- frame was a synchronous TPDO (for the PDO engine's late count)
+    signal sdo_wdr_req     : std_logic;
+    signal sdo_wdr_id      : std_logic_vector(10 downto 0);
+    signal sdo_wdr_ack     : std_logic;
+    signal sdo_tx_abort    : std_logic;
+    signal pdo_cancel_sent : std_logic;
+    -- host NMT command waiting (the configuration list's: acfg_nmt_pending)
+    signal nmt_pending : std_logic;
     -- SYNC producer (canopen_sync_timebase): TXB2 holds a valid SYNC, fire strobe, the
     -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period; its
     -- two strobes from St12 (TXB2 loaded with the SYNC) and St2 (a SYNC frame built)
@@ -365,9 +334,8 @@ architecture rtl of canopen_master_core is
     signal acfg_buf_wdata  : std_logic_vector(31 downto 0);
     signal acfg_nmt_req    : std_logic;
     signal acfg_nmt_node   : std_logic_vector(6 downto 0);
-    -- its NMT start waits here (apart from the host's NMT command, so neither is lost)
+    -- its NMT start waits in canopen_tx_path (apart from the host's NMT command)
     signal acfg_nmt_pending : std_logic;
-    signal acfg_nmt_cmd     : std_logic_vector(6 downto 0);
 
     -- node status RAM of the monitor, read by the host registers: slot, NMT state, last time
     signal node_st_slot     : std_logic_vector(4 downto 0);
@@ -483,8 +451,6 @@ architecture rtl of canopen_master_core is
     -- ---------------------------------------------------------------------------------------------
     -- NMT_CMD: CS is one of the five CiA 301 commands and NODE is 0..127; the request is
     -- accepted; REFUSED as the host reads it (the decision already in the cycle of the request)
-    signal nmt_cmd_ok   : std_logic;
-    signal nmt_accept   : std_logic;
     signal nmt_ref_view : std_logic;
     -- ACFG_STATUS.REFUSED as the host reads it
     signal acfg_ref_view : std_logic;
@@ -506,12 +472,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Time base and SYNC producer (exact period, counter byte, synchronous window)
     -- ---------------------------------------------------------------------------------------------
-    -- St12 loaded TXB2 with the SYNC; St2 builds a SYNC frame (generation source 0)
-    sync_load_done <= '1' when in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_sync_c else
-                      '0';
-    sync_encap     <= '1' when in_encap = '1' and gen_src = 0 else
-                      '0';
-
+    -- (sync_load_done: St12 loaded TXB2 with the SYNC, sync_encap: St11 takes the SYNC source;
+    -- both from canopen_tx_path)
     sync_tb_inst : entity work.canopen_sync_timebase
         generic map (
             CLK_FREQ_HZ => CLK_FREQ_HZ
@@ -552,26 +514,14 @@ begin
     -- half the period, compared with the timer in the clocked process (sync_half)
     sync_period_half <= shift_right(unsigned(sync_period_us), 1);
     om_preload_ok    <= om_feasible and sync_half;
-    -- a generation is only dispatched when its TX buffer is free
-    nmt_gen_req <= (nmt_pending or acfg_nmt_pending or (mon_tx_req and not omni_en))
-                   and not ctl_tx_pending_i(1);
-    sdo_gen_req <= sdo_tx_req and not ctl_tx_pending_i(1);
-    pdo_gen_req <= pdo_tx_req and not ctl_tx_pending_i(0);
-    -- the same for the replies of St5..St7 and St13 (T11, T13, T15, T28): with the buffer
-    -- still pending (its frame loses arbitration on a busy bus) the reply stays requested in its
-    -- source and the FSM returns to St1 (T24, T25, T26, T27), which keeps reading the
-    -- controller's RX FIFO and sends the reply by T20..T22 once the buffer is free; St12 never
-    -- waits for a transmission to end (fuzz finding 2: RX overflow while St12 waited)
+    -- (nmt_gen_req, sdo_gen_req, pdo_gen_req, frame_ready: canopen_tx_path; a generation is
+    -- only dispatched when its TX buffer is free.) The same for the replies of St5..St7 and
+    -- St13 (T11, T13, T15, T28): with the buffer still pending (its frame loses arbitration on a
+    -- busy bus) the reply stays requested in its source and the FSM returns to St1 (T24, T25,
+    -- T26, T27), which keeps reading the controller's RX FIFO and sends the reply by T20..T22
+    -- once the buffer is free; St12 never waits for a transmission to end (fuzz finding 2: RX
+    -- overflow while St12 waited)
     pdo_reply_now <= pdo_rx_reply and not ctl_tx_pending_i(0);
-    -- an ended SDO transfer (any end: client abort, server abort, timeout, ...) withdraws its
-    -- request still waiting in TXB1: cancelled (a frame already on the wire completes); the
-    -- transfer's DONE waits for the withdraw (fuzz finding 3)
-    sdo_cancel    <= '1' when sdo_wdr_req = '1' and ctl_tx_pending_i(1) = '1'
-                              and txb1_sdo_req = '1' and txb1_id = sdo_wdr_id else
-                     '0';
-    sdo_flight    <= '1' when (in_encap = '1' or in_tx = '1') and gen_src = 3 else
-                     '0';
-    sdo_wdr_ack   <= sdo_wdr_req and not sdo_cancel and not sdo_flight;
     sdo_reply_now <= sdo_rx_reply and not ctl_tx_pending_i(1);
     nmt_reply_now <= mon_rx_reply and not ctl_tx_pending_i(1);
 
@@ -611,15 +561,6 @@ begin
 
     end process classify_proc;
 
-    -- host NMT command admission
-    nmt_cmd_ok   <= '1' when (nmt_cs = NMT_CS_START_C or nmt_cs = NMT_CS_STOP_C
-                                 or nmt_cs = NMT_CS_PREOP_C or nmt_cs = NMT_CS_RESET_NODE_C
-                                 or nmt_cs = NMT_CS_RESET_COMM_C) and nmt_node(7) = '0' else
-                    '0';
-    nmt_accept   <= nmt_cmd_ok and not nmt_pending and not omni_en;
-    nmt_ref_view <= not nmt_accept when nmt_req = '1' else
-                    nmt_refused;
-
     -- EMCY FIFO head towards the host: defined (0) while the FIFO is empty
     emcy_head_ok <= '1' when unsigned(emcy_count) /= 0 else
                     '0';
@@ -630,14 +571,7 @@ begin
     emcy_time_h  <= emcy_time when emcy_head_ok = '1' else
                     (others => '0');
 
-    -- St2, St8..St10: the selected source presents its frame
-    frame_ready <= '1' when in_sync_gen = '1' else
-                   '1' when in_nmt_gen = '1' and (nmt_pending = '1' or acfg_nmt_pending = '1'
-                                                     or (mon_tx_req = '1' and omni_en = '0')) else
-                   '1' when in_sdo_gen = '1' and sdo_tx_req = '1' else
-                   '1' when in_pdo_gen = '1' and pdo_tx_req = '1' else
-                   '0';
-    encap_ok    <= in_encap;
+    encap_ok <= in_encap;
 
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
     -- by the node monitor after a node error is sent right away (T28) if TXB1 is free, else
@@ -646,7 +580,7 @@ begin
     err_nmt   <= err_node and mon_tx_req and not ctl_tx_pending_i(1);
 
     -- ---------------------------------------------------------------------------------------------
-    -- Datapath: frames, SYNC, NMT, errors, watchdog
+    -- Datapath: Receive_Data (St3), the registered SYNC half-period condition
     -- ---------------------------------------------------------------------------------------------
     rx_pop         <= in_rx and ctl_rx_valid_i;
     ctl_rx_ready_o <= rx_pop;
@@ -655,28 +589,8 @@ begin
     begin
 
         if rst_n_i = '0' then
-            tx_requested     <= '0';
-            txb1_sdo_req     <= '0';
-            tx_sdo_req       <= '0';
-            cancel_sent      <= '0';
-            cancel_pulse     <= '0';
-            txb0_sync        <= '0';
-            txb0_loading     <= '0';
-            pdo_cancel_req   <= '0';
-            pdo_cancel_sent  <= '0';
-            pdo_cancel_pulse <= '0';
-            gen_src          <= 0;
-            nmt_pending      <= '0';
-            nmt_refused      <= '0';
-            acfg_nmt_pending <= '0';
-            sdo_tx_ack       <= '0';
-            mon_tx_ack       <= '0';
-            pdo_tx_ack       <= '0';
-            sync_half        <= '0';
+            sync_half <= '0';
         elsif rising_edge(clk_i) then
-            sdo_tx_ack <= '0';
-            mon_tx_ack <= '0';
-            pdo_tx_ack <= '0';
             -- (split compare: two 16-bit halves side by side, canopen_util_pkg; registered, so
             -- the FSM's SYNC condition starts at a register)
             sync_half <= '1';
@@ -691,168 +605,81 @@ begin
                 rx_frame.dlc  <= ctl_rx_dlc_i;
                 rx_frame.data <= ctl_rx_data_i;
             end if;
-
-            -- host NMT command --------------------------------------------------------------
-            -- a write while one is pending (or in Omni-ID mode, or with a command specifier
-            -- CiA 301 does not define, or a node-ID above 127) is refused, never overwrites
-            if nmt_req = '1' and nmt_accept = '0' then
-                nmt_refused <= '1';
-            elsif nmt_req = '1' then
-                nmt_refused  <= '0';
-                nmt_pending  <= '1';
-                nmt_cmd_cs   <= nmt_cs;
-                nmt_cmd_node <= nmt_node(6 downto 0);
-            end if;
-
-            -- NMT start of a configured node (canopen_autoconfig) -----------------------------
-            if acfg_nmt_req = '1' then
-                acfg_nmt_pending <= '1';
-                acfg_nmt_cmd     <= acfg_nmt_node;
-            end if;
-
-            -- St2, St8..St10: remember the generation source ---------------------------------
-            if in_sync_gen = '1' then
-                gen_src <= 0;
-            elsif in_nmt_gen = '1' and nmt_pending = '1' then
-                gen_src <= 1;
-            elsif in_nmt_gen = '1' and acfg_nmt_pending = '1' then
-                gen_src <= 5;
-            elsif in_nmt_gen = '1' then
-                gen_src <= 2;
-            elsif in_sdo_gen = '1' then
-                gen_src <= 3;
-            elsif in_pdo_gen = '1' then
-                gen_src <= 4;
-            end if;
-
-            -- St11: encapsulation into Transmit_Data, TX buffer and priority ----------------
-            if in_encap = '1' then
-                tx_frame     <= CAN_FRAME_NONE_C;
-                tx_requested <= '0';
-
-                case gen_src is
-
-                    when 0 =>
-
-                        -- SYNC (COB-ID 080h), with the counter byte when 1019h is set
-                        tx_frame.id <= COB_SYNC_C;
-                        if omni_en = '1' then
-                            -- Omni-ID mode: the engine's cycle frame
-                            tx_frame.id   <= om_cyc_id;
-                            tx_frame.dlc  <= om_cyc_dlc;
-                            tx_frame.data <= om_cyc_data;
-                        elsif unsigned(sync_overflow) >= 2 then
-                            tx_frame.dlc              <= x"1";
-                            tx_frame.data(7 downto 0) <= sync_counter;
-                        end if;
-                        tx_buf  <= txb_sync_c;
-                        tx_txp  <= "11";
-                        tx_send <= '0';
-
-                    when 1 =>
-
-                        -- NMT command [cs, node]
-                        tx_frame.id                <= COB_NMT_C;
-                        tx_frame.dlc               <= x"2";
-                        tx_frame.data(15 downto 0) <= '0' & nmt_cmd_node & nmt_cmd_cs;
-                        tx_buf                     <= txb_cmd_c;
-                        tx_txp                     <= "10";
-                        tx_send                    <= '1';
-                        nmt_pending                <= '0';
-
-                    when 5 =>
-
-                        -- NMT start of a node the configuration list configured
-                        tx_frame.id                <= COB_NMT_C;
-                        tx_frame.dlc               <= x"2";
-                        tx_frame.data(15 downto 0) <= '0' & acfg_nmt_cmd & NMT_CS_START_C;
-                        tx_buf                     <= txb_cmd_c;
-                        tx_txp                     <= "10";
-                        tx_send                    <= '1';
-                        acfg_nmt_pending           <= '0';
-
-                    when 2 =>
-
-                        tx_frame.id   <= mon_tx_id;
-                        tx_frame.rtr  <= mon_tx_rtr;
-                        tx_frame.dlc  <= mon_tx_dlc;
-                        tx_frame.data <= mon_tx_data;
-                        tx_buf        <= txb_cmd_c;
-                        tx_txp        <= "10";
-                        tx_send       <= '1';
-                        mon_tx_ack    <= '1';
-
-                    when 3 =>
-
-                        tx_frame.id   <= sdo_tx_id;
-                        tx_frame.dlc  <= sdo_tx_dlc;
-                        tx_frame.data <= sdo_tx_data;
-                        tx_buf        <= txb_cmd_c;
-                        tx_txp        <= "10";
-                        tx_send       <= '1';
-                        tx_sdo_req    <= not sdo_tx_abort;
-                        sdo_tx_ack    <= '1';
-
-                    when 4 =>
-
-                        tx_frame.id   <= pdo_tx_id;
-                        tx_frame.rtr  <= pdo_tx_rtr;
-                        tx_frame.dlc  <= pdo_tx_dlc;
-                        tx_frame.data <= pdo_tx_data;
-                        tx_buf        <= txb_pdo_c;
-                        tx_txp        <= "01";
-                        tx_send       <= '1';
-                        pdo_tx_ack    <= '1';
-
-                end case;
-
-            end if;
-
-            -- St12: the request stays up until the controller takes it -------------------
-            if in_tx = '1' and ctl_tx_ready_i = '1' then
-                tx_requested <= '1';
-            end if;
-            if in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_cmd_c then
-                txb1_id <= tx_frame.id;
-                if gen_src = 3 and tx_sdo_req = '1' then
-                    txb1_sdo_req <= '1';
-                else
-                    txb1_sdo_req <= '0';
-                end if;
-            end if;
-            -- an SDO transfer ended while its last request still waits in TXB1: the request is
-            -- cancelled once (again only after TXB1 was free) (fuzz finding 3)
-            cancel_pulse <= sdo_cancel and not cancel_sent;
-            if sdo_cancel = '1' then
-                cancel_sent <= '1';
-            end if;
-            if ctl_tx_pending_i(1) = '0' then
-                cancel_sent <= '0';
-            end if;
-            -- a synchronous TPDO not started when the next SYNC fires is withdrawn from TXB0
-            if pe_tx_ack = '1' then
-                txb0_sync    <= pe_tx_sync;
-                txb0_loading <= '1';
-            end if;
-            if (in_tx = '1' and ctl_tx_loaded_i = '1' and tx_buf = txb_pdo_c)
-               or ctl_init_done_i = '0' then
-                txb0_loading <= '0';
-            end if;
-            pdo_cancel_pulse <= pdo_cancel_req and ctl_tx_pending_i(0);
-            if pdo_cancel_req = '1' and ctl_tx_pending_i(0) = '1' then
-                pdo_cancel_req  <= '0';
-                pdo_cancel_sent <= '1';
-            end if;
-            if ctl_tx_pending_i(0) = '0' and txb0_loading = '0' then
-                -- TXB0 free: nothing to cancel, the outcome of a cancel is known
-                pdo_cancel_req  <= '0';
-                pdo_cancel_sent <= '0';
-            elsif sync_fire = '1' and txb0_sync = '1' and omni_en = '0' then
-                pdo_cancel_req <= not pdo_cancel_sent;
-            end if;
         end if;
 
     end process datapath_proc;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- Transmit path: generation sources, Transmit_Data and the TX buffer plan (St2, St8..St12)
+    -- ---------------------------------------------------------------------------------------------
+    tx_path_inst : entity work.canopen_tx_path
+        port map (
+            clk_i              => clk_i,
+            rst_n_i            => rst_n_i,
+            in_sync_gen_i      => in_sync_gen,
+            in_nmt_gen_i       => in_nmt_gen,
+            in_sdo_gen_i       => in_sdo_gen,
+            in_pdo_gen_i       => in_pdo_gen,
+            in_encap_i         => in_encap,
+            in_tx_i            => in_tx,
+            omni_en_i          => omni_en,
+            nmt_req_i          => nmt_req,
+            nmt_cs_i           => nmt_cs,
+            nmt_node_i         => nmt_node,
+            nmt_pending_o      => nmt_pending,
+            nmt_refused_o      => nmt_ref_view,
+            acfg_nmt_req_i     => acfg_nmt_req,
+            acfg_nmt_node_i    => acfg_nmt_node,
+            acfg_nmt_pending_o => acfg_nmt_pending,
+            sync_overflow_i    => sync_overflow,
+            sync_counter_i     => sync_counter,
+            cyc_id_i           => om_cyc_id,
+            cyc_dlc_i          => om_cyc_dlc,
+            cyc_data_i         => om_cyc_data,
+            sync_encap_o       => sync_encap,
+            sync_loaded_o      => sync_load_done,
+            mon_tx_req_i       => mon_tx_req,
+            mon_tx_id_i        => mon_tx_id,
+            mon_tx_rtr_i       => mon_tx_rtr,
+            mon_tx_dlc_i       => mon_tx_dlc,
+            mon_tx_data_i      => mon_tx_data,
+            mon_tx_ack_o       => mon_tx_ack,
+            sdo_tx_req_i       => sdo_tx_req,
+            sdo_tx_id_i        => sdo_tx_id,
+            sdo_tx_dlc_i       => sdo_tx_dlc,
+            sdo_tx_data_i      => sdo_tx_data,
+            sdo_tx_abort_i     => sdo_tx_abort,
+            sdo_tx_ack_o       => sdo_tx_ack,
+            sdo_wdr_req_i      => sdo_wdr_req,
+            sdo_wdr_id_i       => sdo_wdr_id,
+            sdo_wdr_ack_o      => sdo_wdr_ack,
+            pdo_tx_req_i       => pdo_tx_req,
+            pdo_tx_id_i        => pdo_tx_id,
+            pdo_tx_rtr_i       => pdo_tx_rtr,
+            pdo_tx_dlc_i       => pdo_tx_dlc,
+            pdo_tx_data_i      => pdo_tx_data,
+            pdo_tx_sync_i      => pe_tx_sync,
+            pdo_tx_ack_o       => pdo_tx_ack,
+            sync_fire_i        => sync_fire,
+            pdo_cancel_sent_o  => pdo_cancel_sent,
+            nmt_gen_req_o      => nmt_gen_req,
+            sdo_gen_req_o      => sdo_gen_req,
+            pdo_gen_req_o      => pdo_gen_req,
+            frame_ready_o      => frame_ready,
+            ctl_tx_ready_i     => ctl_tx_ready_i,
+            ctl_tx_loaded_i    => ctl_tx_loaded_i,
+            ctl_tx_pending_i   => ctl_tx_pending_i,
+            ctl_init_done_i    => ctl_init_done_i,
+            ctl_tx_valid_o     => ctl_tx_valid_o,
+            ctl_tx_buf_o       => ctl_tx_buf_o,
+            ctl_tx_txp_o       => ctl_tx_txp_o,
+            ctl_tx_send_o      => ctl_tx_send_o,
+            ctl_tx_id_o        => ctl_tx_id_o,
+            ctl_tx_rtr_o       => ctl_tx_rtr_o,
+            ctl_tx_dlc_o       => ctl_tx_dlc_o,
+            ctl_tx_data_o      => ctl_tx_data_o,
+            ctl_tx_cancel_o    => ctl_tx_cancel_o
+        );
 
     -- ---------------------------------------------------------------------------------------------
     -- Fault supervisor: error latch (St13), state watchdog, re-initialisation (St0), CAN status
@@ -900,17 +727,8 @@ begin
             ev_init_o      => ev_init
         );
 
-    -- St12: request towards mcp2510_ctrl
-    ctl_tx_valid_o  <= in_tx and not tx_requested;
-    ctl_tx_buf_o    <= tx_buf;
-    ctl_tx_txp_o    <= tx_txp;
-    ctl_tx_send_o   <= tx_send;
-    ctl_tx_id_o     <= (28 downto 11 => '0') & tx_frame.id;
-    ctl_tx_rtr_o    <= tx_frame.rtr;
-    ctl_tx_dlc_o    <= tx_frame.dlc;
-    ctl_tx_data_o   <= tx_frame.data;
-    ctl_tx_fire_o   <= (2 => sync_fire, others => '0');
-    ctl_tx_cancel_o <= (0 => pdo_cancel_pulse, 1 => cancel_pulse, others => '0');
+    -- St12: the SYNC in TXB2 is started by TX2RTS at the exact period
+    ctl_tx_fire_o <= (2 => sync_fire, others => '0');
 
     -- entry strobes into the processing states: the service blocks see each frame once
     enter_sdo <= in_sdo_proc and state_change;
@@ -1231,8 +1049,7 @@ begin
     end generate no_omni_gen;
 
     -- the cycle frame is taken when St11 encapsulates the SYNC-source frame
-    om_cyc_take <= '1' when in_encap = '1' and gen_src = 0 and omni_en = '1' else
-                   '0';
+    om_cyc_take <= sync_encap and omni_en;
 
     -- the active protocol engine towards the FSM, the datapath and PDO_WIN
     pdo_reg_rdata <= om_reg_rdata when omni_en = '1' else

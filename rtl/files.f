@@ -22,6 +22,7 @@ mcp2510_instr.vhd
 mcp2510_ctrl.vhd
 canopen_sync_timebase.vhd
 canopen_fault_supervisor.vhd
+canopen_tx_path.vhd
 canopen_master_fsm.vhd
 canopen_host_regs.vhd
 canopen_master_core.vhd
