@@ -23,6 +23,9 @@ library ieee;
     use ieee.std_logic_1164.all;
     use ieee.numeric_std.all;
 
+library work;
+    use work.mcp2510_pkg.all;
+
 entity canopen_fault_supervisor is
     generic (
         CAN_BITRATE_BPS   : positive := 1_000_000; -- CAN bit rate (bus-off recovery bound)
@@ -75,9 +78,6 @@ architecture rtl of canopen_fault_supervisor is
     -- bound it. Only a chip still bus-off after that is re-initialised (G1).
     constant busoff_us_c : positive := (128 * 160 * 1000 + CAN_BITRATE_BPS / 1000 - 1)
                                        / (CAN_BITRATE_BPS / 1000);
-    -- EFLG.TXBO
-    constant eflg_txbo_c : natural := 5;
-
     -- error latch
     signal err_can    : std_logic;
     signal err_busoff : std_logic;
@@ -136,7 +136,7 @@ begin
             end if;
             -- bus-off (EFLG.TXBO, shown in STATUS.BUS_OFF): wait for the chip's own recovery;
             -- still bus-off after busoff_us_c -> re-initialise (St13 -> St0, G1), once
-            if can_eflg(eflg_txbo_c) = '0' or init_done_i = '0' then
+            if can_eflg(MCP_EFLG_TXBO_BIT_C) = '0' or init_done_i = '0' then
                 busoff_us <= 0;
             elsif tick_us_i = '1' and busoff_us = busoff_us_c - 1 then
                 busoff_us  <= busoff_us_c;

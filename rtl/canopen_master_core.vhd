@@ -38,6 +38,7 @@ library work;
     use work.canopen_pkg.all;
     use work.canopen_master_pkg.all;
     use work.canopen_util_pkg.all;
+    use work.mcp2510_pkg.all;
 
 entity canopen_master_core is
     generic (
@@ -131,11 +132,6 @@ architecture rtl of canopen_master_core is
 
     constant config_ok_c : boolean := check_config;
 
-    -- EFLG bits
-    constant eflg_txbo_c  : natural                      := 5;
-    constant eflg_any_c   : std_logic_vector(7 downto 0) := x"3F";
-    constant intf_errif_c : natural                      := 5;
-
     -- ---------------------------------------------------------------------------------------------
     -- Host register block interface
     -- ---------------------------------------------------------------------------------------------
@@ -199,7 +195,6 @@ architecture rtl of canopen_master_core is
     signal cls_pdo      : std_logic;
     signal cls_sdo      : std_logic;
     signal cls_nmt      : std_logic;
-    signal pdo_done     : std_logic;
     signal frame_ready  : std_logic;
     signal encap_ok     : std_logic;
     signal err_fatal    : std_logic;
@@ -684,7 +679,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Fault supervisor: error latch (St13), state watchdog, re-initialisation (St0), CAN status
     -- ---------------------------------------------------------------------------------------------
-    fs_errif    <= ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c);
+    fs_errif    <= ctl_int_valid_i and ctl_int_canintf_i(MCP_CANINTF_ERRIF_BIT_C);
     fs_rx_ovf   <= or_reduce(ctl_rx_overflow_i);
     fs_tx_fault <= or_reduce(ctl_tx_err_i) or or_reduce(ctl_tx_drop_i);
     fs_node_err <= or_reduce(ev_lost) or or_reduce(ev_toggle);
@@ -752,7 +747,7 @@ begin
     -- fires of an unloaded buffer
     cnt_tx_error <= ctl_tx_errors_i or or_reduce(ctl_tx_drop_i);
     -- error interrupts (ERRIF) and resets of the chip found by the error poll (chip lost)
-    cnt_can_error <= (ctl_int_valid_i and ctl_int_canintf_i(intf_errif_c)) or ctl_chip_lost_i;
+    cnt_can_error <= fs_errif or ctl_chip_lost_i;
     cnt_malformed <= mon_rx_done and mon_rx_malformed;
     cnt_hb_loss   <= or_reduce(ev_lost);
     cnt_guard_err <= or_reduce(ev_toggle);
@@ -1223,7 +1218,7 @@ begin
             init_fail_i              => ctl_init_fail_i,
             ctrl_busy_i              => ctl_busy_i,
             tx_pending_i             => ctl_tx_pending_i,
-            bus_off_i                => can_eflg(eflg_txbo_c),
+            bus_off_i                => can_eflg(MCP_EFLG_TXBO_BIT_C),
             err_passive_i            => can_err_passive,
             nmt_busy_i               => nmt_pending,
             nmt_refused_i            => nmt_ref_view,

@@ -218,6 +218,15 @@ architecture rtl of canopen_pdo_engine is
 
     constant config_ok_c : boolean := check_config;
 
+    -- word of bank b of TPDO k in the TPDO data RAMs: 2k + b, built as a concatenation
+
+    function bank_word (k : natural; b : std_logic) return natural is
+    begin
+
+        return to_integer(to_unsigned(k, 5) & b);
+
+    end function bank_word;
+
     -- ---------------------------------------------------------------------------------------------
     -- Types
     -- ---------------------------------------------------------------------------------------------
@@ -1121,46 +1130,33 @@ begin
     t_ram_ctrl_proc : process (commit_t, sel_ch, t_act, t_pend, stg_view, txi, wr_sel,
                                reg_wdata_i, new_ok) is
 
-        variable ch_v   : natural range 0 to 31;
-        variable bank_v : std_logic;
+        variable ch_v : natural range 0 to 31;
 
     begin
 
+        -- each address is the channel number with its bank bit appended (bank_word): one
+        -- N:1 selection of that bit, not a chain of comparisons of the whole address per channel
         t_we <= commit_t;
         t_wa <= 0;
         t_wd <= stg_view;
 
-        for k in 0 to N_TPDO - 1 loop
-
-            if sel_ch = k then
-                t_wa <= 2 * k + 1 - bit_int(t_act(k));
-            end if;
-
-        end loop;
+        if sel_ch < N_TPDO then
+            t_wa <= bank_word(sel_ch, not t_act(sel_ch));
+        end if;
 
         ta_ra <= 0;
 
-        for k in 0 to N_TPDO - 1 loop
+        if txi < N_TPDO then
+            ta_ra <= bank_word(txi, t_act(txi));
+        end if;
 
-            if txi = k then
-                ta_ra <= 2 * k + bit_int(t_act(k));
-            end if;
+        tb_ra <= 0;
+        tb_re <= '0';
+        ch_v  := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)));
 
-        end loop;
-
-        tb_ra  <= 0;
-        tb_re  <= '0';
-        ch_v   := to_integer(unsigned(reg_wdata_i(PDO_SEL_CH_HI_C downto PDO_SEL_CH_LO_C)));
-        bank_v := '0';
-
-        for k in 0 to N_TPDO - 1 loop
-
-            if ch_v = k then
-                bank_v := t_act(k) xor t_pend(k);
-                tb_ra  <= 2 * k + bit_int(bank_v);
-            end if;
-
-        end loop;
+        if ch_v < N_TPDO then
+            tb_ra <= bank_word(ch_v, t_act(ch_v) xor t_pend(ch_v));
+        end if;
 
         if wr_sel = '1' and new_ok = '1' and reg_wdata_i(PDO_SEL_RPDO_C) = '0' then
             tb_re <= '1';

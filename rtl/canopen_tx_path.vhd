@@ -119,15 +119,35 @@ architecture rtl of canopen_tx_path is
     constant txb_cmd_c  : std_logic_vector(1 downto 0) := "01";
     constant txb_sync_c : std_logic_vector(1 downto 0) := "10";
 
-    -- Transmit_Data (thesis: frame register filled in St11) and its buffer plan
-    signal tx_frame     : can_frame_t;
-    signal tx_buf       : std_logic_vector(1 downto 0);
-    signal tx_txp       : std_logic_vector(1 downto 0);
-    signal tx_send      : std_logic;
-    signal tx_requested : std_logic;
     -- source of the frame being generated: 0 SYNC, 1 NMT host, 2 NMT monitor, 3 SDO, 4 PDO,
     -- 5 NMT start of the configuration list
-    signal gen_src : natural range 0 to 5;
+
+    subtype gen_src_t is natural range 0 to 5;
+
+    -- the buffer plan per source: TX buffer, TXP priority, RTS right after the load (the SYNC
+    -- in TXB2 is only loaded; the SYNC timebase requests its send)
+
+    type tx_plan_t is record
+        buf  : std_logic_vector(1 downto 0);
+        txp  : std_logic_vector(1 downto 0);
+        send : std_logic;
+    end record tx_plan_t;
+
+    type tx_plan_arr_t is array (gen_src_t) of tx_plan_t;
+
+    constant tx_plan_c : tx_plan_arr_t :=
+    (
+        0      => (buf => txb_sync_c, txp => "11", send => '0'),
+        4      => (buf => txb_pdo_c,  txp => "01", send => '1'),
+        others => (buf => txb_cmd_c,  txp => "10", send => '1')
+    );
+
+    -- Transmit_Data (thesis: frame register filled in St11); its buffer plan follows gen_src,
+    -- which holds from the generation state through St11 and St12
+    signal gen_src      : gen_src_t;
+    signal tx_frame     : can_frame_t;
+    signal tx_buf       : std_logic_vector(1 downto 0);
+    signal tx_requested : std_logic;
     -- host NMT command waiting; refused; its fields
     signal nmt_pending  : std_logic;
     signal nmt_refused  : std_logic;
@@ -212,9 +232,6 @@ begin
 
         if rst_n_i = '0' then
             tx_frame         <= CAN_FRAME_NONE_C;
-            tx_buf           <= txb_pdo_c;
-            tx_txp           <= "00";
-            tx_send          <= '0';
             tx_requested     <= '0';
             txb1_sdo_req     <= '0';
             txb1_id          <= (others => '0');
@@ -294,31 +311,20 @@ begin
                             tx_frame.dlc              <= x"1";
                             tx_frame.data(7 downto 0) <= sync_counter_i;
                         end if;
-                        tx_buf  <= txb_sync_c;
-                        tx_txp  <= "11";
-                        tx_send <= '0';
 
-                    when 1 =>
+                    when 1 | 5 =>
 
-                        -- NMT command [cs, node]
-                        tx_frame.id                <= COB_NMT_C;
-                        tx_frame.dlc               <= x"2";
-                        tx_frame.data(15 downto 0) <= '0' & nmt_cmd_node & nmt_cmd_cs;
-                        tx_buf                     <= txb_cmd_c;
-                        tx_txp                     <= "10";
-                        tx_send                    <= '1';
-                        nmt_pending                <= '0';
-
-                    when 5 =>
-
-                        -- NMT start of a node the configuration list configured
-                        tx_frame.id                <= COB_NMT_C;
-                        tx_frame.dlc               <= x"2";
-                        tx_frame.data(15 downto 0) <= '0' & acfg_nmt_cmd & NMT_CS_START_C;
-                        tx_buf                     <= txb_cmd_c;
-                        tx_txp                     <= "10";
-                        tx_send                    <= '1';
-                        acfg_nmt_pending           <= '0';
+                        -- NMT command [cs, node]: the host's, or the start of a node the
+                        -- configuration list configured
+                        tx_frame.id  <= COB_NMT_C;
+                        tx_frame.dlc <= x"2";
+                        if gen_src = 1 then
+                            tx_frame.data(15 downto 0) <= '0' & nmt_cmd_node & nmt_cmd_cs;
+                            nmt_pending                <= '0';
+                        else
+                            tx_frame.data(15 downto 0) <= '0' & acfg_nmt_cmd & NMT_CS_START_C;
+                            acfg_nmt_pending           <= '0';
+                        end if;
 
                     when 2 =>
 
@@ -326,9 +332,6 @@ begin
                         tx_frame.rtr  <= mon_tx_rtr_i;
                         tx_frame.dlc  <= mon_tx_dlc_i;
                         tx_frame.data <= mon_tx_data_i;
-                        tx_buf        <= txb_cmd_c;
-                        tx_txp        <= "10";
-                        tx_send       <= '1';
                         mon_tx_ack    <= '1';
 
                     when 3 =>
@@ -336,9 +339,6 @@ begin
                         tx_frame.id   <= sdo_tx_id_i;
                         tx_frame.dlc  <= sdo_tx_dlc_i;
                         tx_frame.data <= sdo_tx_data_i;
-                        tx_buf        <= txb_cmd_c;
-                        tx_txp        <= "10";
-                        tx_send       <= '1';
                         tx_sdo_req    <= not sdo_tx_abort_i;
                         sdo_tx_ack    <= '1';
 
@@ -348,9 +348,6 @@ begin
                         tx_frame.rtr  <= pdo_tx_rtr_i;
                         tx_frame.dlc  <= pdo_tx_dlc_i;
                         tx_frame.data <= pdo_tx_data_i;
-                        tx_buf        <= txb_pdo_c;
-                        tx_txp        <= "01";
-                        tx_send       <= '1';
                         pdo_tx_ack    <= '1';
 
                 end case;
@@ -403,6 +400,8 @@ begin
 
     end process tx_proc;
 
+    tx_buf <= tx_plan_c(gen_src).buf;
+
     nmt_pending_o      <= nmt_pending;
     acfg_nmt_pending_o <= acfg_nmt_pending;
     mon_tx_ack_o       <= mon_tx_ack;
@@ -413,8 +412,8 @@ begin
     -- St12: request towards mcp2510_ctrl
     ctl_tx_valid_o  <= in_tx_i and not tx_requested;
     ctl_tx_buf_o    <= tx_buf;
-    ctl_tx_txp_o    <= tx_txp;
-    ctl_tx_send_o   <= tx_send;
+    ctl_tx_txp_o    <= tx_plan_c(gen_src).txp;
+    ctl_tx_send_o   <= tx_plan_c(gen_src).send;
     ctl_tx_id_o     <= (28 downto 11 => '0') & tx_frame.id;
     ctl_tx_rtr_o    <= tx_frame.rtr;
     ctl_tx_dlc_o    <= tx_frame.dlc;

@@ -91,22 +91,24 @@ package mcp2510_pkg is
     constant MCP_OPMODE_NORMAL_C      : natural := 0;
     constant MCP_OPMODE_CONFIG_C      : natural := 4;
     -- CANINTE / CANINTF
-    constant MCP_CANINTF_RX0IF_C : byte_t := x"01";
-    constant MCP_CANINTF_RX1IF_C : byte_t := x"02";
-    constant MCP_CANINTF_TX0IF_C : byte_t := x"04";
-    constant MCP_CANINTF_TX1IF_C : byte_t := x"08";
-    constant MCP_CANINTF_TX2IF_C : byte_t := x"10";
-    constant MCP_CANINTF_ERRIF_C : byte_t := x"20";
-    constant MCP_CANINTF_WAKIF_C : byte_t := x"40";
-    constant MCP_CANINTF_MERRF_C : byte_t := x"80";
-    constant MCP_CANINTE_TX0IE_C : byte_t := x"04";
-    constant MCP_CANINTE_TX1IE_C : byte_t := x"08";
-    constant MCP_CANINTE_TX2IE_C : byte_t := x"10";
-    constant MCP_CANINTE_ERRIE_C : byte_t := x"20";
-    constant MCP_CANINTE_MERRE_C : byte_t := x"80";
+    constant MCP_CANINTF_RX0IF_C     : byte_t  := x"01";
+    constant MCP_CANINTF_RX1IF_C     : byte_t  := x"02";
+    constant MCP_CANINTF_TX0IF_C     : byte_t  := x"04";
+    constant MCP_CANINTF_TX1IF_C     : byte_t  := x"08";
+    constant MCP_CANINTF_TX2IF_C     : byte_t  := x"10";
+    constant MCP_CANINTF_ERRIF_C     : byte_t  := x"20";
+    constant MCP_CANINTF_WAKIF_C     : byte_t  := x"40";
+    constant MCP_CANINTF_MERRF_C     : byte_t  := x"80";
+    constant MCP_CANINTF_ERRIF_BIT_C : natural := 5; -- bit index of ERRIF (error interrupt)
+    constant MCP_CANINTE_TX0IE_C     : byte_t  := x"04";
+    constant MCP_CANINTE_TX1IE_C     : byte_t  := x"08";
+    constant MCP_CANINTE_TX2IE_C     : byte_t  := x"10";
+    constant MCP_CANINTE_ERRIE_C     : byte_t  := x"20";
+    constant MCP_CANINTE_MERRE_C     : byte_t  := x"80";
     -- EFLG
-    constant MCP_EFLG_RX0OVR_C : byte_t := x"40";
-    constant MCP_EFLG_RX1OVR_C : byte_t := x"80";
+    constant MCP_EFLG_RX0OVR_C   : byte_t  := x"40";
+    constant MCP_EFLG_RX1OVR_C   : byte_t  := x"80";
+    constant MCP_EFLG_TXBO_BIT_C : natural := 5; -- bit index of TXBO (bus-off)
     -- TXBnCTRL
     constant MCP_TXBCTRL_ABTF_C  : byte_t := x"40";
     constant MCP_TXBCTRL_MLOA_C  : byte_t := x"20";

@@ -16,6 +16,7 @@ from cocotb.triggers import FallingEdge, ReadOnly
 
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.runner import param, run_cocotb
+from tb.tblib.strobe_ports import StrobePorts
 
 CLK_HZ = 20_000_000
 EFLG_TXBO = 1 << 5
@@ -23,6 +24,9 @@ EFLG_TXBO = 1 << 5
 INPUTS = ("tick_us_i", "init_done_i", "init_fail_i", "chip_lost_i", "int_errif_i",
           "rx_overflow_i", "tx_fault_i", "host_reinit_i", "node_error_i", "state_change_i",
           "in_init_i", "in_error_i")
+#: inputs that return to 0 after the cycles of one step (levels: init_done, init_fail, in_init)
+STROBES = ("tick_us_i", "chip_lost_i", "int_errif_i", "rx_overflow_i", "tx_fault_i",
+           "host_reinit_i", "node_error_i", "state_change_i", "in_error_i")
 LATCH = ("err_can_o", "err_busoff_o", "err_reinit_o", "err_node_o", "err_chip_o")
 
 
@@ -37,34 +41,19 @@ class TB:
         self.watchdog_us = param("WATCHDOG_US")
         self.backoff_us = 1000 * param("REINIT_BACKOFF_MS")
         self.busoff_us = busoff_us(param("CAN_BITRATE_BPS"))
+        self.ports = StrobePorts(dut, dut.clk_i, STROBES)
+        self.out = self.ports.out
+        self.step = self.ports.step  # step(n, **inputs): n clocks, then strobes back to 0
 
     async def start(self) -> None:
         start_clock(self.dut.clk_i, CLK_HZ)
-        for name in INPUTS:
-            getattr(self.dut, name).value = 0
-        for name in ("tec_i", "rec_i", "eflg_i"):
-            getattr(self.dut, name).value = 0
+        self.ports.zero(*INPUTS, "tec_i", "rec_i", "eflg_i")
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
         await FallingEdge(self.dut.clk_i)
 
-    def out(self, name: str) -> int:
-        return int(getattr(self.dut, name).value)
-
-    async def step(self, n: int = 1, **inputs: int) -> None:
-        """Hold ``inputs`` for ``n`` clocks (set at a falling edge), then restore strobes to 0."""
-        for name, value in inputs.items():
-            getattr(self.dut, name).value = value
-        for _ in range(n):
-            await FallingEdge(self.dut.clk_i)
-        for name in inputs:
-            if name in ("tick_us_i", "chip_lost_i", "int_errif_i", "rx_overflow_i", "tx_fault_i",
-                        "host_reinit_i", "node_error_i", "state_change_i", "in_error_i"):
-                getattr(self.dut, name).value = 0
-
     async def edges_until(self, name: str, limit: int, **inputs: int) -> int:
         """Clock edges (with ``inputs`` held) until output ``name`` is 1; fails after limit."""
-        for name_in, value in inputs.items():
-            getattr(self.dut, name_in).value = value
+        self.ports.apply(**inputs)
         for n in range(1, limit + 1):
             await FallingEdge(self.dut.clk_i)
             if self.out(name):

@@ -16,6 +16,7 @@ from cocotb.triggers import FallingEdge, ReadOnly
 
 from tb.tblib.clkrst import reset_active_low, start_clock
 from tb.tblib.runner import run_cocotb
+from tb.tblib.strobe_ports import StrobePorts
 
 CLK_HZ = 20_000_000
 STATES = ("in_sync_gen_i", "in_nmt_gen_i", "in_sdo_gen_i", "in_pdo_gen_i", "in_encap_i",
@@ -38,6 +39,7 @@ SAMPLED = ("ctl_tx_valid_o", "nmt_refused_o", "sdo_wdr_ack_o", "nmt_gen_req_o")
 class TB:
     def __init__(self, dut) -> None:
         self.dut = dut
+        self.ports = StrobePorts(dut, dut.clk_i, STATES + STROBES)
         self.acks = {"mon": 0, "sdo": 0, "pdo": 0}
         self.cancels = [0, 0, 0]
         self.s: dict[str, int] = {}  # outputs sampled in the last clock() cycle
@@ -45,16 +47,13 @@ class TB:
     async def start(self) -> None:
         dut = self.dut
         start_clock(dut.clk_i, CLK_HZ)
-        for name in STATES + STROBES + ("omni_en_i", "mon_tx_req_i", "mon_tx_rtr_i",
-                                        "sdo_tx_req_i", "sdo_tx_abort_i", "pdo_tx_req_i",
-                                        "pdo_tx_rtr_i", "pdo_tx_sync_i", "ctl_init_done_i"):
-            getattr(dut, name).value = 0
-        for name in ("nmt_cs_i", "nmt_node_i", "acfg_nmt_node_i", "sync_overflow_i",
-                     "sync_counter_i", "cyc_id_i", "cyc_dlc_i", "cyc_data_i", "mon_tx_id_i",
-                     "mon_tx_dlc_i", "mon_tx_data_i", "sdo_tx_id_i", "sdo_tx_dlc_i",
-                     "sdo_tx_data_i", "sdo_wdr_id_i", "pdo_tx_id_i", "pdo_tx_dlc_i",
-                     "pdo_tx_data_i", "ctl_tx_pending_i"):
-            getattr(dut, name).value = 0
+        self.ports.zero(*STATES, *STROBES, "omni_en_i", "mon_tx_req_i", "mon_tx_rtr_i",
+                        "sdo_tx_req_i", "sdo_tx_abort_i", "pdo_tx_req_i", "pdo_tx_rtr_i",
+                        "pdo_tx_sync_i", "nmt_cs_i", "nmt_node_i", "acfg_nmt_node_i",
+                        "sync_overflow_i", "sync_counter_i", "cyc_id_i", "cyc_dlc_i",
+                        "cyc_data_i", "mon_tx_id_i", "mon_tx_dlc_i", "mon_tx_data_i",
+                        "sdo_tx_id_i", "sdo_tx_dlc_i", "sdo_tx_data_i", "sdo_wdr_id_i",
+                        "pdo_tx_id_i", "pdo_tx_dlc_i", "pdo_tx_data_i", "ctl_tx_pending_i")
         dut.ctl_init_done_i.value = 1
         await reset_active_low(dut.clk_i, dut.rst_n_i)
         await FallingEdge(dut.clk_i)
@@ -62,13 +61,12 @@ class TB:
     def out(self, name: str) -> int:
         """An output as of the last falling edge: registered outputs only (the inputs of the
         cycle before are still applied there; combinational outputs: ``self.s``)."""
-        return int(getattr(self.dut, name).value)
+        return self.ports.out(name)
 
     async def clock(self, **inputs: int) -> None:
         """Apply ``inputs`` for one clock (strobes and states back to 0 after it); the outputs
         of that cycle (before its edge) are kept in ``self.s``, acks and cancels counted."""
-        for name, value in inputs.items():
-            getattr(self.dut, name).value = value
+        self.ports.apply(**inputs)
         await ReadOnly()
         self.s = {name: self.out(name) for name in SAMPLED}
         for src in self.acks:
@@ -77,9 +75,13 @@ class TB:
         for k in range(3):
             self.cancels[k] += (cancel >> k) & 1
         await FallingEdge(self.dut.clk_i)
-        for name in inputs:
-            if name in STATES or name in STROBES:
-                getattr(self.dut, name).value = 0
+        self.ports.release(inputs)
+
+    async def idle(self, n: int, **inputs: int) -> None:
+        """``inputs`` for one clock, then ``n`` clocks with nothing active (cancels counted)."""
+        await self.clock(**inputs)
+        for _ in range(n):
+            await self.clock()
 
     async def generate(self, state: str) -> None:
         """One generation state, St11, then St12 until the controller took and loaded it."""
@@ -223,7 +225,7 @@ async def run_sdo_withdraw(dut):
     await tb.generate("in_sdo_gen_i")
     await tb.clock(sdo_wdr_req_i=1, ctl_tx_pending_i=0b010)
     assert tb.s["sdo_wdr_ack_o"] == 1
-    await tb.clock()
+    await tb.idle(5)
     assert tb.cancels == [0, 1, 0]
 
 
@@ -237,9 +239,7 @@ async def run_sync_tpdo_cancel(dut):
     dut.pdo_tx_id_i.value = 0x185
     await tb.generate("in_pdo_gen_i")
     dut.pdo_tx_req_i.value = 0
-    await tb.clock(sync_fire_i=1, ctl_tx_pending_i=0b001)
-    for _ in range(5):
-        await tb.clock()
+    await tb.idle(5, sync_fire_i=1, ctl_tx_pending_i=0b001)
     assert tb.cancels == [1, 0, 0], f"one cancel of TXB0, got {tb.cancels}"
     assert tb.out("pdo_cancel_sent_o") == 1
     await tb.clock(ctl_tx_pending_i=0)
@@ -248,9 +248,7 @@ async def run_sync_tpdo_cancel(dut):
     dut.pdo_tx_req_i.value = 1
     dut.pdo_tx_sync_i.value = 0
     await tb.generate("in_pdo_gen_i")
-    await tb.clock(sync_fire_i=1, ctl_tx_pending_i=0b001)
-    for _ in range(5):
-        await tb.clock()
+    await tb.idle(5, sync_fire_i=1, ctl_tx_pending_i=0b001)
     assert tb.cancels == [1, 0, 0]
 
 

@@ -9,6 +9,7 @@ Conventions:
 
 * ``<REG>_<BIT>`` is a single-bit mask (e.g. ``CANINTF_RX0IF = 0x01``).
 * ``<REG>_<FIELD>_MASK`` / ``<REG>_<FIELD>_SHIFT`` describe a multi-bit field.
+* ``<REG>_<BIT>_BIT`` is the index of a single bit, for the RTL that tests one bit of a byte.
 * ``<REG>_RESET`` is the value after power-on / RESET (bits the data sheet lists as 'x',
   unknown, are modelled as 0).
 * ``TXBNxxx`` / ``RXBNxxx`` names describe the per-buffer layout (offsets from the buffer's
@@ -257,6 +258,7 @@ CANINTF_TX0IF = 0x04
 CANINTF_TX1IF = 0x08
 CANINTF_TX2IF = 0x10
 CANINTF_ERRIF = 0x20
+CANINTF_ERRIF_BIT = 5
 CANINTF_WAKIF = 0x40
 CANINTF_MERRF = 0x80
 CANINTF_RESET = 0x00
@@ -268,6 +270,7 @@ EFLG_TXWAR = 0x04  # TEC >= 96
 EFLG_RXEP = 0x08  # REC >= 128
 EFLG_TXEP = 0x10  # TEC >= 128
 EFLG_TXBO = 0x20  # bus-off
+EFLG_TXBO_BIT = 5
 EFLG_RX0OVR = 0x40  # RXB0 overflow; host may clear, never set
 EFLG_RX1OVR = 0x80  # RXB1 overflow; host may clear, never set
 EFLG_OVR_MASK = 0xC0

@@ -41,6 +41,9 @@ def test_constants_match_the_data_sheet() -> None:
     assert R.reg_name(0x43) == "TXB1EID8"
     # the short names used by rtl/mcp2510_pkg.vhd
     assert (R.TXBCTRL_TXREQ, R.SIDL_SRR, R.SIDL_IDE, R.DLC_RTR) == (0x08, 0x10, 0x08, 0x40)
+    # every bit index names the bit of its mask
+    for name in (n for n in dir(R) if n.endswith("_BIT")):
+        assert 1 << getattr(R, name) == getattr(R, name[: -len("_BIT")]), name
 
 
 def test_oscillator_range() -> None:
