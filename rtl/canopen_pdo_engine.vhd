@@ -1134,8 +1134,8 @@ begin
 
     begin
 
-        -- each address is the channel number with its bank bit appended (bank_word): one
-        -- N:1 selection of that bit, not a chain of comparisons of the whole address per channel
+        -- each address is the channel number with its bank bit appended (bank_word); an
+        -- out-of-range channel (an RPDO item or select) gives word 0, as the loops did before
         t_we <= commit_t;
         t_wa <= 0;
         t_wd <= stg_view;
