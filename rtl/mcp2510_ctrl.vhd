@@ -1038,7 +1038,7 @@ begin
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
-                        -- the frame is decoded into fifo_din by capture_proc
+                        -- rx_decode_proc decodes the held response into fifo_din
                         fifo_push <= '1';
                         go(S_RX_CLEAR);
                     end if;
@@ -1269,12 +1269,52 @@ begin
     end process seq_proc;
 
     -- ---------------------------------------------------------------------------------------------
+    -- RX frame decode (combinational): the RX buffer bytes of the executor's response (0 SIDH,
+    -- 1 SIDL, 2 EID8, 3 EID0, 4 DLC, 5.. data) as one FIFO entry. No register of its own: the
+    -- executor holds rsp_rdata from rsp_valid until it accepts the next command, and the push
+    -- (the cycle after rsp_valid of S_RX_READ) comes before S_RX_CLEAR's command is accepted.
+    -- ---------------------------------------------------------------------------------------------
+    rx_decode_proc : process (rsp_rdata, rx_buf) is
+
+        variable rd   : std_logic_vector(111 downto 0);
+        variable id_v : std_logic_vector(28 downto 0);
+
+    begin
+
+        rd   := rsp_rdata;
+        id_v := (others => '0');
+
+        if (byte_of(rd, 1) and MCP_SIDL_IDE_C) /= x"00" then
+            id_v         := byte_of(rd, 0) & rd(15 downto 13) & rd(9 downto 8)
+                            & byte_of(rd, 2) & byte_of(rd, 3);
+            fifo_din(70) <= '1';
+            -- extended frames: RTR is DLC bit 6
+            fifo_din(69) <= rd(32 + 6);
+        else
+            id_v(10 downto 0) := byte_of(rd, 0) & rd(15 downto 13);
+            fifo_din(70)      <= '0';
+            -- standard frames: RTR is SIDL.SRR
+            fifo_din(69) <= rd(8 + 4);
+        end if;
+
+        fifo_din(99 downto 71) <= id_v;
+        fifo_din(68 downto 65) <= rd(35 downto 32);
+        fifo_din(64 downto 1)  <= rd(103 downto 40);
+
+        if rx_buf = 0 then
+            fifo_din(0) <= '0';
+        else
+            fifo_din(0) <= '1';
+        end if;
+
+    end process rx_decode_proc;
+
+    -- ---------------------------------------------------------------------------------------------
     -- Response capture (datapath): decode what the chip answered in the state that asked for it
     -- ---------------------------------------------------------------------------------------------
     capture_proc : process (clk_i) is
 
-        variable rd   : std_logic_vector(111 downto 0);
-        variable id_v : std_logic_vector(28 downto 0);
+        variable rd : std_logic_vector(111 downto 0);
 
     begin
 
@@ -1283,31 +1323,6 @@ begin
             if rsp_valid = '1' then
 
                 case state is
-
-                    -- RX buffer bytes: 0 SIDH, 1 SIDL, 2 EID8, 3 EID0, 4 DLC, 5.. data
-                    when S_RX_READ =>
-
-                        id_v := (others => '0');
-                        if (byte_of(rd, 1) and MCP_SIDL_IDE_C) /= x"00" then
-                            id_v         := byte_of(rd, 0) & rd(15 downto 13) & rd(9 downto 8)
-                                            & byte_of(rd, 2) & byte_of(rd, 3);
-                            fifo_din(70) <= '1';
-                            -- extended frames: RTR is DLC bit 6
-                            fifo_din(69) <= rd(32 + 6);
-                        else
-                            id_v(10 downto 0) := byte_of(rd, 0) & rd(15 downto 13);
-                            fifo_din(70)      <= '0';
-                            -- standard frames: RTR is SIDL.SRR
-                            fifo_din(69) <= rd(8 + 4);
-                        end if;
-                        fifo_din(99 downto 71) <= id_v;
-                        fifo_din(68 downto 65) <= rd(35 downto 32);
-                        fifo_din(64 downto 1)  <= rd(103 downto 40);
-                        if rx_buf = 0 then
-                            fifo_din(0) <= '0';
-                        else
-                            fifo_din(0) <= '1';
-                        end if;
 
                     when S_INT_READ =>
 

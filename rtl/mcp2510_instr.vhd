@@ -11,7 +11,9 @@
 --   cmd_instr_i is the full first byte; an address byte follows for READ, WRITE and BIT MODIFY.
 --   cmd_len_i data bytes follow: taken from cmd_wdata_i (WRITE, BIT MODIFY: mask then data) or
 --   clocked out as 0x00 while the chip answers (READ, READ STATUS). The bytes the chip sends
---   during the data phase are returned in rsp_rdata_o (byte k at bits 8k+7..8k).
+--   during the data phase are returned in rsp_rdata_o (byte k at bits 8k+7..8k), which holds
+--   them from rsp_valid_o until the next command is accepted (mcp2510_ctrl decodes an RX frame
+--   from it without a copy).
 --   RX-buffer mode (cmd_rxbuf_i = '1', with READ at RXBnSIDH): the length is taken from the
 --   received data. After the DLC byte (data byte 4) only as many data bytes are read as the
 --   frame carries (0 for a remote frame, else DLC, at most 8), so a short frame costs fewer SPI
