@@ -226,14 +226,14 @@ architecture rtl of canopen_master_core is
     -- host NMT command waiting (the configuration list's: acfg_nmt_pending)
     signal nmt_pending : std_logic;
     -- SYNC producer (canopen_sync_timebase): TXB2 holds a valid SYNC, fire strobe, the
-    -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period; its
+    -- counter byte to preload, what the PDOs belong to, SYNCs fired, us into the period + 1; its
     -- two strobes from St12 (TXB2 loaded with the SYNC) and St2 (a SYNC frame built)
     signal sync_loaded    : std_logic;
     signal sync_counter   : std_logic_vector(7 downto 0);
     signal sync_count     : std_logic_vector(31 downto 0);
     signal sync_sent      : std_logic_vector(7 downto 0);
     signal sync_fire      : std_logic;
-    signal sync_timer     : std_logic_vector(31 downto 0);
+    signal sync_next      : std_logic_vector(31 downto 0);
     signal sync_load_done : std_logic;
     signal sync_encap     : std_logic;
     -- the SYNC timer is in the second half of the period (SYNC_PERIOD_US / 2 or later): the
@@ -493,7 +493,7 @@ begin
             sync_counter_o   => sync_counter,
             sync_sent_o      => sync_sent,
             sync_count_o     => sync_count,
-            sync_timer_o     => sync_timer,
+            sync_next_o      => sync_next,
             window_open_o    => window_open
         );
 
@@ -586,11 +586,12 @@ begin
         if rst_n_i = '0' then
             sync_half <= '0';
         elsif rising_edge(clk_i) then
-            -- (split compare: two 16-bit halves side by side, canopen_util_pkg; registered, so
-            -- the FSM's SYNC condition starts at a register)
-            sync_half <= '1';
-            if lt_split(unsigned(sync_timer), sync_period_half) then
-                sync_half <= '0';
+            -- us into the period >= half, i.e. half < sync_next (split compare: two 16-bit
+            -- halves side by side, canopen_util_pkg; registered, so the FSM's SYNC condition
+            -- starts at a register)
+            sync_half <= '0';
+            if lt_split(sync_period_half, unsigned(sync_next)) then
+                sync_half <= '1';
             end if;
 
             -- St3: Receive_Data ---------------------------------------------------------------

@@ -28,8 +28,10 @@
 --   fire, SYNC_OVERFLOW change. docs/canopen_master_top.md (SYNC producer) for the timing.
 --   The 32-bit counters count in two 16-bit halves (inc_split: the upper half steps on a
 --   registered "lower half all ones" flag) and the 32-bit compares are split the same way
---   (lt_split): no path through all 32 bits. The period end compares the timer's next value
---   (sync_next = sync_timer + 1, kept as its own counter) with the period.
+--   (lt_split): no path through all 32 bits. The period timer is kept as its next value only,
+--   sync_next = (us into the period) + 1 (1 at the period start): the period end compares it with
+--   the period, and sync_next_o gives it to the core (the position in the period is
+--   sync_next_o - 1; the core's half-period compare is written for sync_next_o).
 -- =================================================================================================
 
 library ieee;
@@ -68,7 +70,7 @@ entity canopen_sync_timebase is
         sync_counter_o : out   std_logic_vector(7 downto 0);  -- counter byte to preload
         sync_sent_o    : out   std_logic_vector(7 downto 0);  -- SYNC the PDOs belong to
         sync_count_o   : out   std_logic_vector(31 downto 0); -- SYNCs fired since reset
-        sync_timer_o   : out   std_logic_vector(31 downto 0); -- us into the period
+        sync_next_o    : out   std_logic_vector(31 downto 0); -- us into the period + 1
         window_open_o  : out   std_logic                      -- synchronous window open
     );
 end entity canopen_sync_timebase;
@@ -87,8 +89,7 @@ architecture rtl of canopen_sync_timebase is
     -- inc_split flags of the counters: the lower half is all ones
     signal time_us_lo1 : std_logic;
     signal time_ms_lo1 : std_logic;
-    -- SYNC producer; sync_next = sync_timer + 1 at all times
-    signal sync_timer   : unsigned(31 downto 0);
+    -- SYNC producer; sync_next = (us into the period) + 1
     signal sync_next    : unsigned(31 downto 0);
     signal sync_nx_lo1  : std_logic;
     signal sync_cnt_lo1 : std_logic;
@@ -157,7 +158,6 @@ begin
     begin
 
         if rst_n_i = '0' then
-            sync_timer   <= (others => '0');
             sync_next    <= to_unsigned(1, 32);
             sync_nx_lo1  <= '0';
             sync_cnt_lo1 <= '0';
@@ -187,15 +187,13 @@ begin
             end if;
 
             -- exact period in clock cycles, started by the TX2RTS pin
-            -- (sync_timer + 1 >= period, i.e. not sync_next < period)
+            -- (us into the period + 1 >= period, i.e. not sync_next < period)
             if sync_en_i = '0' or unsigned(sync_period_us_i) = 0 then
-                sync_timer  <= (others => '0');
                 sync_next   <= to_unsigned(1, 32);
                 sync_nx_lo1 <= '0';
                 sync_late   <= '0';
             elsif tick_us = '1' then
                 if not lt_split(sync_next, unsigned(sync_period_us_i)) then
-                    sync_timer  <= (others => '0');
                     sync_next   <= to_unsigned(1, 32);
                     sync_nx_lo1 <= '0';
                     if sync_loaded = '1' then
@@ -204,7 +202,6 @@ begin
                         sync_late <= '1';
                     end if;
                 else
-                    sync_timer  <= sync_next;
                     sync_next   <= inc_split(sync_next, sync_nx_lo1);
                     sync_nx_lo1 <= lo_ones_after_inc(sync_next);
                 end if;
@@ -271,6 +268,6 @@ begin
     sync_counter_o <= std_logic_vector(sync_counter);
     sync_sent_o    <= std_logic_vector(sync_sent);
     sync_count_o   <= std_logic_vector(sync_count);
-    sync_timer_o   <= std_logic_vector(sync_timer);
+    sync_next_o    <= std_logic_vector(sync_next);
 
 end architecture rtl;

@@ -1,7 +1,8 @@
 """Bench of ``canopen_sync_timebase``: time base, SYNC producer, SYNC counter, window.
 
 A cycle-exact Python model (:class:`TimebaseModel`, written from the entity's header with plain
-32-bit arithmetic: ``sync_timer + 1 >= period`` ends a period, ``window_us < window`` keeps the
+32-bit arithmetic: ``sync_timer + 1 >= period`` ends a period (the DUT shows ``sync_timer + 1``
+as ``sync_next_o``), ``window_us < window`` keeps the
 window open, the counters count by one) runs beside the DUT and every output is compared after
 every rising edge. The RTL counts in 16-bit halves with registered "lower half all ones" flags
 and splits the 32-bit compares (``inc_split`` / ``lt_split`` of ``canopen_util_pkg``); these
@@ -119,7 +120,7 @@ class TimebaseModel:
             "sync_loaded_o": self.loaded, "sync_fire_o": self.fire,
             "sync_fire_q_o": self.fire_q, "sync_counter_o": self.counter,
             "sync_sent_o": self.sent, "sync_count_o": self.count,
-            "sync_timer_o": self.timer, "window_open_o": self.window_open(i["window"]),
+            "sync_next_o": self.timer + 1, "window_open_o": self.window_open(i["window"]),
         }
 
 
