@@ -1309,6 +1309,31 @@ begin
 
     end process rx_decode_proc;
 
+    -- simulation only: a push takes the response of an RX buffer read, still held by the
+    -- executor (no command accepted since that response)
+    -- pragma translate_off
+    rx_hold_check_proc : process (clk_i) is
+
+        variable rx_held : boolean := false;
+
+    begin
+
+        if rising_edge(clk_i) then
+            assert fifo_push = '0' or rx_held
+                report "mcp2510_ctrl: RX FIFO push without the RX buffer read's response"
+                severity failure;
+            if cmd_valid = '1' and cmd_ready = '1' then
+                rx_held := false;
+            end if;
+            if rsp_valid = '1' and state = S_RX_READ then
+                rx_held := true;
+            end if;
+        end if;
+
+    end process rx_hold_check_proc;
+
+    -- pragma translate_on
+
     -- ---------------------------------------------------------------------------------------------
     -- Response capture (datapath): decode what the chip answered in the state that asked for it
     -- ---------------------------------------------------------------------------------------------
