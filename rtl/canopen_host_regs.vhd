@@ -516,23 +516,19 @@ begin
             acfg_sub       <= (others => '0');
             acfg_done      <= '0';
             acfg_start_o   <= '0';
-            acfg_tbl_we_o  <= '0';
             reinit_o       <= '0';
-            nmt_req_o      <= '0';
             node_clear_o   <= (others => '0');
             emcy_clear_o   <= '0';
             emcy_pop_o     <= '0';
             sdo_req_o      <= '0';
         elsif rising_edge(clk_i) then
             -- strobes
-            reinit_o      <= '0';
-            nmt_req_o     <= '0';
-            node_clear_o  <= (others => '0');
-            emcy_clear_o  <= '0';
-            emcy_pop_o    <= '0';
-            sdo_req_o     <= '0';
-            acfg_start_o  <= '0';
-            acfg_tbl_we_o <= '0';
+            reinit_o     <= '0';
+            node_clear_o <= (others => '0');
+            emcy_clear_o <= '0';
+            emcy_pop_o   <= '0';
+            sdo_req_o    <= '0';
+            acfg_start_o <= '0';
 
             -- interrupt flags: clear by writing 1, an event in the same cycle wins
             ev_v                           := (others => '0');
@@ -565,9 +561,6 @@ begin
                 end if;
                 if is_off(av_addr, REG_IRQ_ENABLE_C) then
                     irq_enable <= mrg(irq_enable, av_wd, be_bits, irq_bits_c - 1, 0);
-                end if;
-                if is_off(av_addr, REG_NMT_CMD_C) then
-                    nmt_req_o <= '1';
                 end if;
                 if is_off(av_addr, REG_SYNC_PERIOD_US_C) then
                     sync_period <= mrg(sync_period, av_wd, be_bits,
@@ -649,9 +642,8 @@ begin
                 -- (an entry with NODE > 127, or a size other than 1..4, is refused)
                 if is_off(av_addr, REG_ACFG_VALUE_C) then
                     if acfg_entry_ok(acfg_node, acfg_size) then
-                        acfg_tbl_we_o <= '1';
-                        acfg_entry    <= acfg_entry + 1;
-                        acfg_ref      <= '0';
+                        acfg_entry <= acfg_entry + 1;
+                        acfg_ref   <= '0';
                     else
                         acfg_ref <= '1';
                     end if;
@@ -690,20 +682,31 @@ begin
     end process regs_proc;
 
     -- ---------------------------------------------------------------------------------------------
-    -- Command fields: datapath, qualified by nmt_req_o / sdo_req_o (no reset)
+    -- Commands acted on in the act cycle: NMT_CMD and ACFG_VALUE drive their strobe and fields
+    -- straight from the registered request (av_*), because their consumers keep the fields
+    -- themselves (canopen_tx_path's waiting NMT command, canopen_autoconfig's table RAM): a
+    -- second register here would only hold a copy
+    -- ---------------------------------------------------------------------------------------------
+    nmt_req_o  <= '1' when av_wr = '1' and is_off(av_addr, REG_NMT_CMD_C) else
+                  '0';
+    nmt_cs_o   <= av_wd(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
+    nmt_node_o <= av_wd(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
+
+    -- the entry is stored at the end of the act cycle, where acfg_entry still points at it
+    acfg_tbl_we_o    <= '1' when av_wr = '1' and is_off(av_addr, REG_ACFG_VALUE_C)
+                                 and acfg_entry_ok(acfg_node, acfg_size) else
+                        '0';
+    acfg_tbl_addr_o  <= std_logic_vector(acfg_entry);
+    acfg_tbl_value_o <= av_wd;
+
+    -- ---------------------------------------------------------------------------------------------
+    -- SDO_CMD fields: datapath, qualified by sdo_req_o (no reset); registered like the other
+    -- strobes, because the SDO channels decide on the request in the cycle of the strobe
     -- ---------------------------------------------------------------------------------------------
     cmd_data_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
-            if av_wr = '1' and is_off(av_addr, REG_NMT_CMD_C) then
-                nmt_cs_o   <= av_wd(NMT_CMD_CS_HI_C downto NMT_CMD_CS_LO_C);
-                nmt_node_o <= av_wd(NMT_CMD_NODE_HI_C downto NMT_CMD_NODE_LO_C);
-            end if;
-            if av_wr = '1' and is_off(av_addr, REG_ACFG_VALUE_C) then
-                acfg_tbl_addr_o  <= std_logic_vector(acfg_entry);
-                acfg_tbl_value_o <= av_wd;
-            end if;
             if av_wr = '1' and is_off(av_addr, REG_SDO_CMD_C) then
                 sdo_node_o   <= av_wd(SDO_CMD_NODE_HI_C downto SDO_CMD_NODE_LO_C);
                 sdo_upload_o <= av_wd(SDO_CMD_UPLOAD_C);
