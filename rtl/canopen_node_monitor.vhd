@@ -11,7 +11,8 @@
 --   of function code 1110b (700h + node: heartbeat, boot-up, guarding reply) and every EMCY
 --   (081h..0FFh) with rx_valid_i and waits for rx_done_o (2 clock cycles later, 3 or 4 when
 --   an NMT start is requested: rx_reply_o, and tx_req_o is already up); rx_valid_i is ignored
---   while a frame is in process. The frames this block wants to send (guarding RTRs, NMT start
+--   while a frame is in process; the frame inputs are held from rx_valid_i until rx_done_o
+--   and read where they are. The frames this block wants to send (guarding RTRs, NMT start
 --   after a boot-up, NMT reset-node after a loss) wait behind tx_req_o and are taken with
 --   tx_ack_i in St10 "new NMT".
 --   * MAX_NODES slots, each configured by the host with a node-ID (0 = unused), a mode (off,
@@ -174,12 +175,8 @@ architecture rtl of canopen_node_monitor is
     -- ---------------------------------------------------------------------------------------------
     -- Signals
     -- ---------------------------------------------------------------------------------------------
-    -- received frame, latched with rx_valid_i (datapath) with time_ms_i at that moment (of the
-    -- data only the state byte: an EMCY goes into its FIFO at that edge)
-    signal rx_id_q   : cob_id_t;
-    signal rx_rtr_q  : std_logic;
-    signal rx_dlc_q  : std_logic_vector(3 downto 0);
-    signal rx_data_q : std_logic_vector(7 downto 0);
+    -- time_ms_i at the edge that samples rx_valid_i (datapath); the frame itself is read on
+    -- rx_*_i, held by the caller from rx_valid_i until rx_done_o (no copy)
     signal rx_time_q : std_logic_vector(31 downto 0);
     -- receive sequencer state, class of the frame, one-hot slot of its node (first match)
     signal rx_state : rx_state_t;
@@ -354,17 +351,13 @@ architecture rtl of canopen_node_monitor is
 begin
 
     -- ---------------------------------------------------------------------------------------------
-    -- Received frame latch (datapath)
+    -- Received frame: its time and the slot compares registered (datapath), the frame read in place
     -- ---------------------------------------------------------------------------------------------
     rx_latch_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
             if rx_valid_i = '1' and rx_state = S_RX_IDLE then
-                rx_id_q   <= rx_id_i;
-                rx_rtr_q  <= rx_rtr_i;
-                rx_dlc_q  <= rx_dlc_i;
-                rx_data_q <= rx_data_i(7 downto 0);
                 rx_time_q <= time_ms_i;
 
                 for k in 0 to MAX_NODES - 1 loop
@@ -437,15 +430,15 @@ begin
                 when S_RX_MATCH =>
 
                     class_v := RX_UNEXPECTED;
-                    if rx_rtr_q = '0' and node_of(rx_id_q) /= node_none_c then
-                        if func_code(rx_id_q) = FC_NMT_EC_C then
-                            if rx_dlc_q /= ec_dlc_c then
+                    if rx_rtr_i = '0' and node_of(rx_id_i) /= node_none_c then
+                        if func_code(rx_id_i) = FC_NMT_EC_C then
+                            if rx_dlc_i /= ec_dlc_c then
                                 class_v := RX_MALFORMED;
                             elsif match_any = '1' then
                                 class_v := RX_EC;
                             end if;
-                        elsif func_code(rx_id_q) = FC_SYNC_EMCY_C then
-                            if rx_dlc_q /= emcy_dlc_c then
+                        elsif func_code(rx_id_i) = FC_SYNC_EMCY_C then
+                            if rx_dlc_i /= emcy_dlc_c then
                                 class_v := RX_MALFORMED;
                             else
                                 class_v := RX_EMCY;
@@ -488,8 +481,8 @@ begin
 
     -- what applying the error-control frame does: a boot-up with autostart requests NMT start,
     -- a guarding reply without an RTR out for it is unexpected (and ignored)
-    rx_state_byte <= rx_data_q(6 downto 0);
-    rx_toggle     <= rx_data_q(toggle_bit_c);
+    rx_state_byte <= rx_data_i(6 downto 0);
+    rx_toggle     <= rx_data_i(toggle_bit_c);
     rx_apply      <= '1' when rx_state = S_RX_APPLY and rx_class = RX_EC else
                      '0';
 
