@@ -506,7 +506,8 @@ begin
     err_pending <= err_can or err_busoff or err_reinit or err_node or err_chip;
     sync_due    <= sync_en and or_reduce(sync_period_us) and not sync_loaded and not sync_fire_q
                    and not ctl_tx_pending_i(2) and (not omni_en or om_preload_ok);
-    -- half the period, compared with the timer in the clocked process (sync_half)
+    -- half the period, compared with the timer's next value (sync_next) in the clocked process
+    -- (sync_half)
     sync_period_half <= shift_right(unsigned(sync_period_us), 1);
     om_preload_ok    <= om_feasible and sync_half;
     -- (nmt_gen_req, sdo_gen_req, pdo_gen_req, frame_ready: canopen_tx_path; a generation is
