@@ -6,12 +6,19 @@ node (test name plus parameters), so ``pytest -n auto`` can run benches in paral
 
 Generics go to GHDL as ``-g<NAME>=<value>`` and, because cocotb cannot read generics on GHDL,
 also to the Python side as ``PARAM_<NAME>`` environment variables (see :func:`param`).
+
+Every GHDL command runs in its own process group, killed as a whole when the call is
+interrupted (pytest's ``timeout``, Ctrl-C): ``ghdl -r`` starts the simulation binary as its own
+child, and killing only ``ghdl`` (what ``subprocess.run`` does) leaves the simulation running
+without a parent, holding a core for the rest of the suite.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import signal
+import subprocess
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -46,6 +53,30 @@ def param(name: str, default: int | None = None) -> int:
     return int(value)
 
 
+def _ghdl_runner():
+    """cocotb's GHDL runner with the process-group handling of the module docstring."""
+    from cocotb_tools.runner import Ghdl
+
+    class GroupKillingGhdl(Ghdl):
+        def _execute_cmds(self, cmds, cwd, stdout=None) -> None:
+            __tracebackhide__ = True
+            for cmd in cmds:
+                self.log.info("Running command %s in directory %s", " ".join(cmd), cwd)
+                stderr = None if stdout is None else subprocess.STDOUT
+                proc = subprocess.Popen(cmd, cwd=cwd, env=self.env, stdout=stdout,
+                                        stderr=stderr, start_new_session=True)
+                try:
+                    rc = proc.wait()
+                except BaseException:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                    raise
+                if rc != 0:
+                    raise RuntimeError(f"Command failed with return code: {rc}")
+
+    return GroupKillingGhdl()
+
+
 def run_cocotb(
     *,
     toplevel: str,
@@ -67,8 +98,6 @@ def run_cocotb(
     bus functional models drive 'X' on idle inputs (cocotb-bus's Avalon master) use "disable".
     Returns the build directory (which holds ``<toplevel>.ghw`` when waves were requested).
     """
-    from cocotb_tools.runner import get_runner
-
     os.environ.setdefault("GHDL_BACKEND", "llvm")
     parameters = dict(parameters or {})
     if waves is None:
@@ -79,7 +108,7 @@ def run_cocotb(
     env.update(extra_env or {})
     env.setdefault("COCOTB_LOG_LEVEL", os.environ.get("COCOTB_LOG_LEVEL", "INFO"))
 
-    runner = get_runner("ghdl")
+    runner = _ghdl_runner()
     runner.build(
         sources=rtl_sources(),
         hdl_library=HDL_LIBRARY,
