@@ -22,11 +22,15 @@
 --     where they are executed (canopen_master_core, canopen_sdo_channels).
 --   * Avalon inputs: address, read, write, writedata and byteenable are registered at the
 --     port (av_*); everything below works on the registered request, one cycle after the bus
---     cycle (writes act then, in order with the reads).
+--     cycle (writes act then, in order with the reads). The address also goes to the
+--     NODE_TIME RAM's address register (sampled at the same edge), see below.
 --   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
 --     avs_read_i by exactly two cycles for every address. SDO_BUF reads drive sdo_buf_addr_o
 --     in the registered read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in
 --     the next one. PDO_WIN reads likewise: pdo_addr_o, then pdo_rdata_i selected.
+--   * NODE_TIME(k) is a word of a RAM (node_tl_*: passed on to the node monitor's copy);
+--     the slot's old word (the previous cycle's write to it, the RAM's word, or 0 for a slot
+--     not written since reset) is read in the act cycle and merged with a partial write.
 --   * RW registers merge a partial write with their own value (per bit: the byte enable
 --     chooses, which synthesis maps to the flip-flop enable), not with the read multiplexer.
 --   * Byte enables: honoured by RW registers (only enabled bytes change) and by W1C/pulse bits
@@ -85,13 +89,18 @@ entity canopen_host_regs is
         sync_overflow_o  : out   std_logic_vector(7 downto 0);  -- SYNC counter overflow
         sync_window_us_o : out   std_logic_vector(31 downto 0); -- synchronous window [us]
         -- node supervision configuration, slot k in bits (k+1)*w-1 .. k*w
-        node_cfg_node_o          : out   std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- id
-        node_cfg_mode_o          : out   std_logic_vector(2 * MAX_NODES - 1 downto 0);  -- mode
-        node_cfg_time_o          : out   std_logic_vector(16 * MAX_NODES - 1 downto 0); -- [ms]
-        node_cfg_life_o          : out   std_logic_vector(8 * MAX_NODES - 1 downto 0);  -- life
-        node_cfg_autostart_o     : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- flag
-        node_cfg_reset_on_loss_o : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- flag
-        node_clear_o             : out   std_logic_vector(MAX_NODES - 1 downto 0);      -- pulse
+        node_cfg_node_o          : out   std_logic_vector(7 * MAX_NODES - 1 downto 0); -- id
+        node_cfg_mode_o          : out   std_logic_vector(2 * MAX_NODES - 1 downto 0); -- mode
+        node_cfg_autostart_o     : out   std_logic_vector(MAX_NODES - 1 downto 0);     -- flag
+        node_cfg_reset_on_loss_o : out   std_logic_vector(MAX_NODES - 1 downto 0);     -- flag
+        node_clear_o             : out   std_logic_vector(MAX_NODES - 1 downto 0);     -- pulse
+        -- NODE_TIME write port (the node monitor keeps its own copy in RAM): the slot's whole
+        -- new word in the cycle it is written, and the slots written since reset (others are 0)
+        node_tl_we_o   : out   std_logic;                                -- pulse: written
+        node_tl_slot_o : out   std_logic_vector(4 downto 0);             -- slot
+        node_tl_time_o : out   std_logic_vector(15 downto 0);            -- TIME_MS [ms]
+        node_tl_life_o : out   std_logic_vector(7 downto 0);             -- LIFE_FACTOR
+        node_tl_ok_o   : out   std_logic_vector(MAX_NODES - 1 downto 0); -- written since reset
         -- EMCY FIFO control
         emcy_clear_o : out   std_logic; -- pulse: clear the EMCY lost flag
         emcy_pop_o   : out   std_logic; -- pulse: drop the EMCY FIFO head
@@ -215,6 +224,8 @@ architecture rtl of canopen_host_regs is
     -- PDO_WIN window, decoded the same way
     constant pdo_bits_c : natural := clog2(REG_PDO_WIN_WORDS_C);
     constant pdo_win_c  : natural := REG_PDO_WIN_C / REG_PDO_WIN_WORDS_C;
+    -- NODE_TIME RAM word: bits 23..0 of the register (TIME_MS, LIFE_FACTOR)
+    constant tl_bits_c : positive := NODE_TIME_LIFE_FACTOR_HI_C + 1;
 
     function check_config return boolean is
     begin
@@ -223,6 +234,10 @@ architecture rtl of canopen_host_regs is
             report "canopen_host_regs: MAX_NODES = " & integer'image(MAX_NODES)
                    & " above the register map's " & integer'image(REG_NODE_SLOTS_MAX_C)
                    & " node slots"
+            severity failure;
+        assert NODE_TIME_TIME_MS_LO_C = 0 and NODE_TIME_TIME_MS_HI_C = 15
+               and NODE_TIME_LIFE_FACTOR_LO_C = 16 and NODE_TIME_LIFE_FACTOR_HI_C = 23
+            report "canopen_host_regs: NODE_TIME is not TIME_MS 15..0, LIFE_FACTOR 23..16"
             severity failure;
         assert cnt_num_c = 11
             report "canopen_host_regs: CNT_RX_FRAMES .. CNT_EMCY are not 11 consecutive words"
@@ -278,6 +293,25 @@ architecture rtl of canopen_host_regs is
         return node(7) = '0' and unsigned(size) >= 1 and unsigned(size) <= 4;
 
     end function acfg_entry_ok;
+
+    -- the node slot of a per-node register address (slot 0 outside the node registers and for
+    -- slots >= MAX_NODES: callers qualify it with the address decode)
+
+    function slot_of (addr : std_logic_vector(7 downto 0)) return natural is
+
+        variable off_v : unsigned(7 downto 0);
+
+    begin
+
+        off_v := unsigned(addr) - REG_NODE_CFG_C;
+
+        if to_integer(off_v(5 downto 2)) < MAX_NODES then
+            return to_integer(off_v(5 downto 2));
+        end if;
+
+        return 0;
+
+    end function slot_of;
 
     -- a write into the field hi..lo of an RW register: the enabled bytes from the write data,
     -- the others from the register itself (not through the read multiplexer)
@@ -345,10 +379,6 @@ architecture rtl of canopen_host_regs is
 
     type slot_mode_t is array (0 to MAX_NODES - 1) of std_logic_vector(1 downto 0);
 
-    type slot_time_t is array (0 to MAX_NODES - 1) of std_logic_vector(15 downto 0);
-
-    type slot_life_t is array (0 to MAX_NODES - 1) of std_logic_vector(7 downto 0);
-
     -- RW registers
     signal sync_en       : std_logic;
     signal omni_en       : std_logic;
@@ -360,8 +390,6 @@ architecture rtl of canopen_host_regs is
     signal sync_window    : std_logic_vector(31 downto 0);
     signal node_id        : slot_id_t;
     signal node_mode      : slot_mode_t;
-    signal node_time      : slot_time_t;
-    signal node_life      : slot_life_t;
     signal node_autostart : std_logic_vector(MAX_NODES - 1 downto 0);
     signal node_rst_loss  : std_logic_vector(MAX_NODES - 1 downto 0);
     signal sdo_index      : std_logic_vector(15 downto 0);
@@ -423,6 +451,27 @@ architecture rtl of canopen_host_regs is
     signal rd_pdo : std_logic;
     -- CNT_* read: the counter bank's read data selected
     signal rd_cnt : std_logic;
+
+    -- NODE_TIME of every slot in a RAM (a word is bits 23..0 of the register: TIME_MS and
+    -- LIFE_FACTOR). It is read at the slot of the bus address itself (avs_address_i goes only
+    -- into the RAM's address register, like into av_addr), so the word of the registered
+    -- request is there in its act cycle, for the read and for merging a partial write.
+    -- tl_ok marks the slots written since reset (the others read 0); tl_fwd_* hold the word
+    -- written in the previous cycle, which the RAM does not return yet for that slot
+    signal tl_raddr    : natural range 0 to MAX_NODES - 1;
+    signal tl_q        : std_logic_vector(tl_bits_c - 1 downto 0);
+    signal tl_ok       : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal tl_slot     : natural range 0 to MAX_NODES - 1;
+    signal tl_sel      : std_logic;
+    signal tl_wr       : std_logic;
+    signal tl_fwd_hit  : std_logic;
+    signal tl_ok_sel   : std_logic;
+    signal tl_old      : std_logic_vector(tl_bits_c - 1 downto 0);
+    signal tl_new      : std_logic_vector(tl_bits_c - 1 downto 0);
+    signal tl_fwd_v    : std_logic;
+    signal tl_fwd_slot : natural range 0 to MAX_NODES - 1;
+    signal tl_fwd_word : std_logic_vector(tl_bits_c - 1 downto 0);
+    signal one         : std_logic;
 
 begin
 
@@ -495,8 +544,6 @@ begin
             sync_window    <= (others => '0');
             node_id        <= (others => (others => '0'));
             node_mode      <= (others => (others => '0'));
-            node_time      <= (others => (others => '0'));
-            node_life      <= (others => (others => '0'));
             node_autostart <= (others => '0');
             node_rst_loss  <= (others => '0');
             sdo_index      <= (others => '0');
@@ -662,12 +709,6 @@ begin
                         node_rst_loss(k)  <= mrg_bit(node_rst_loss(k), av_wd, be_bits,
                                                      NODE_CFG_RESET_ON_LOSS_C);
                     end if;
-                    if is_off(av_addr, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C) then
-                        node_time(k) <= mrg(node_time(k), av_wd, be_bits,
-                                            NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C);
-                        node_life(k) <= mrg(node_life(k), av_wd, be_bits,
-                                            NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C);
-                    end if;
                     if is_off(av_addr, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C) then
                         node_clear_o(k) <= wr_ones(NODE_STATUS_LOST_C)
                                            or wr_ones(NODE_STATUS_TOGGLE_ERR_C)
@@ -728,6 +769,75 @@ begin
                & '0' & cnt_rx_frame_i;
 
     -- ---------------------------------------------------------------------------------------------
+    -- NODE_TIME in RAM: read at the bus address' slot (the word of av_addr in the act cycle),
+    -- the old word (the previous cycle's write to the same slot, the RAM's word of a slot
+    -- written since reset, else 0) read and merged with the enabled bytes of a write, which
+    -- stores the whole word at the end of the act cycle and passes it to the node monitor
+    -- ---------------------------------------------------------------------------------------------
+    one      <= '1';
+    tl_raddr <= slot_of(avs_address_i);
+    tl_slot  <= slot_of(av_addr);
+    tl_sel   <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                         and nst_off(1 downto 0) = REG_NODE_TIME_C - REG_NODE_CFG_C else
+                '0';
+    tl_wr    <= av_wr and tl_sel;
+
+    tl_fwd_hit <= '1' when tl_fwd_v = '1' and tl_fwd_slot = tl_slot else
+                  '0';
+    tl_ok_sel  <= tl_ok(tl_slot);
+    tl_old     <= tl_fwd_word when tl_fwd_hit = '1' else
+                  tl_q when tl_ok_sel = '1' else
+                  (others => '0');
+    tl_new     <= mrg(tl_old, av_wd, be_bits, tl_bits_c - 1, 0);
+
+    tl_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => MAX_NODES,
+            WIDTH => tl_bits_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => tl_wr,
+            waddr_i => tl_slot,
+            wdata_i => tl_new,
+            re_i    => one,
+            raddr_i => tl_raddr,
+            rdata_o => tl_q
+        );
+
+    tl_ctrl_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            tl_ok    <= (others => '0');
+            tl_fwd_v <= '0';
+        elsif rising_edge(clk_i) then
+            tl_fwd_v <= tl_wr;
+            if tl_wr = '1' then
+                tl_ok(tl_slot) <= '1';
+            end if;
+        end if;
+
+    end process tl_ctrl_proc;
+
+    -- datapath, qualified by tl_fwd_v (no reset)
+    tl_fwd_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            tl_fwd_slot <= tl_slot;
+            tl_fwd_word <= tl_new;
+        end if;
+
+    end process tl_fwd_proc;
+
+    node_tl_we_o   <= tl_wr;
+    node_tl_slot_o <= std_logic_vector(to_unsigned(tl_slot, 5));
+    node_tl_time_o <= tl_new(NODE_TIME_TIME_MS_HI_C downto NODE_TIME_TIME_MS_LO_C);
+    node_tl_life_o <= tl_new(NODE_TIME_LIFE_FACTOR_HI_C downto NODE_TIME_LIFE_FACTOR_LO_C);
+    node_tl_ok_o   <= tl_ok;
+
+    -- ---------------------------------------------------------------------------------------------
     -- Node status RAM read port (canopen_node_monitor): the slot of the addressed NODE_STATUS /
     -- NODE_LAST_MS in the act cycle, the RAM's registered data selected in the next
     -- ---------------------------------------------------------------------------------------------
@@ -778,13 +888,14 @@ begin
                              emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
                              init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
                              node_alive_i, node_autostart, node_bootup_i, node_id,
-                             node_life, node_lost_i, node_mode, node_rst_loss,
-                             node_time, node_toggle_i, omni_en, ovf_refused, rec_i,
+                             node_lost_i, node_mode, node_rst_loss,
+                             node_toggle_i, omni_en, ovf_refused, rec_i,
                              sdo_busy_i, sdo_chan,
                              sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
                              sdo_index, sdo_refused_i, sdo_sel, sdo_start_i,
                              sdo_subindex, sdo_timeout, sync_count_i, sync_en, sync_overflow,
-                             sync_period, sync_window, tec_i, time_us_i, tx_pending_i) is
+                             sync_period, sync_window, tec_i, time_us_i, tl_old, tl_sel,
+                             tx_pending_i) is
 
         -- the address and the word being built (put: canopen_util_pkg)
         variable a : std_logic_vector(7 downto 0);
@@ -829,10 +940,8 @@ begin
                 or at(node_mode(k), NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C)
                 or at(node_autostart(k), NODE_CFG_AUTOSTART_C)
                 or at(node_rst_loss(k), NODE_CFG_RESET_ON_LOSS_C));
-            put(v, a, REG_NODE_TIME_C + k * REG_NODE_STRIDE_C,
-                at(node_time(k), NODE_TIME_TIME_MS_HI_C, NODE_TIME_TIME_MS_LO_C)
-                or at(node_life(k), NODE_TIME_LIFE_FACTOR_HI_C, NODE_TIME_LIFE_FACTOR_LO_C));
-            -- NMT_STATE and NODE_LAST_MS: the status RAM's data, selected after the read
+            -- NODE_TIME: the slot's RAM word, below; NMT_STATE and NODE_LAST_MS: the status
+            -- RAM's data, selected after the read
             put(v, a, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
                 at(node_alive_i(k), NODE_STATUS_ALIVE_C)
                 or at(node_lost_i(k), NODE_STATUS_LOST_C)
@@ -840,6 +949,10 @@ begin
                 or at(node_bootup_i(k), NODE_STATUS_BOOTUP_C));
 
         end loop;
+
+        if tl_sel = '1' then
+            v(tl_bits_c - 1 downto 0) := v(tl_bits_c - 1 downto 0) or tl_old;
+        end if;
 
         put(v, a, REG_EMCY_STATUS_C,
             at(emcy_count_i, EMCY_STATUS_COUNT_HI_C, EMCY_STATUS_COUNT_LO_C)
@@ -970,10 +1083,8 @@ begin
     -- ---------------------------------------------------------------------------------------------
 
     slot_out_gen : for k in 0 to MAX_NODES - 1 generate
-        node_cfg_node_o(7 * k + 6 downto 7 * k)    <= node_id(k);
-        node_cfg_mode_o(2 * k + 1 downto 2 * k)    <= node_mode(k);
-        node_cfg_time_o(16 * k + 15 downto 16 * k) <= node_time(k);
-        node_cfg_life_o(8 * k + 7 downto 8 * k)    <= node_life(k);
+        node_cfg_node_o(7 * k + 6 downto 7 * k) <= node_id(k);
+        node_cfg_mode_o(2 * k + 1 downto 2 * k) <= node_mode(k);
     end generate slot_out_gen;
 
     sync_en_o                <= sync_en;

@@ -145,8 +145,12 @@ architecture rtl of canopen_master_core is
     signal sync_window_us : std_logic_vector(31 downto 0);
     signal cfg_node       : std_logic_vector(7 * MAX_NODES - 1 downto 0);
     signal cfg_mode       : std_logic_vector(2 * MAX_NODES - 1 downto 0);
-    signal cfg_time       : std_logic_vector(16 * MAX_NODES - 1 downto 0);
-    signal cfg_life       : std_logic_vector(8 * MAX_NODES - 1 downto 0);
+    -- NODE_TIME write port (host block -> node monitor's time RAM)
+    signal cfg_tl_we      : std_logic;
+    signal cfg_tl_slot    : std_logic_vector(4 downto 0);
+    signal cfg_tl_time    : std_logic_vector(15 downto 0);
+    signal cfg_tl_life    : std_logic_vector(7 downto 0);
+    signal cfg_tl_ok      : std_logic_vector(MAX_NODES - 1 downto 0);
     signal cfg_autostart  : std_logic_vector(MAX_NODES - 1 downto 0);
     signal cfg_reset_loss : std_logic_vector(MAX_NODES - 1 downto 0);
     signal node_clear     : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -887,10 +891,13 @@ begin
             time_ms_i           => time_ms,
             cfg_node_i          => cfg_node,
             cfg_mode_i          => cfg_mode,
-            cfg_time_i          => cfg_time,
-            cfg_life_i          => cfg_life,
             cfg_autostart_i     => cfg_autostart,
             cfg_reset_on_loss_i => cfg_reset_loss,
+            cfg_tl_we_i         => cfg_tl_we,
+            cfg_tl_slot_i       => cfg_tl_slot,
+            cfg_tl_time_i       => cfg_tl_time,
+            cfg_tl_life_i       => cfg_tl_life,
+            cfg_tl_ok_i         => cfg_tl_ok,
             st_alive_o          => st_alive,
             st_lost_o           => st_lost,
             st_toggle_o         => st_toggle,
@@ -1182,11 +1189,14 @@ begin
             sync_window_us_o         => sync_window_us,
             node_cfg_node_o          => cfg_node,
             node_cfg_mode_o          => cfg_mode,
-            node_cfg_time_o          => cfg_time,
-            node_cfg_life_o          => cfg_life,
             node_cfg_autostart_o     => cfg_autostart,
             node_cfg_reset_on_loss_o => cfg_reset_loss,
             node_clear_o             => node_clear,
+            node_tl_we_o             => cfg_tl_we,
+            node_tl_slot_o           => cfg_tl_slot,
+            node_tl_time_o           => cfg_tl_time,
+            node_tl_life_o           => cfg_tl_life,
+            node_tl_ok_o             => cfg_tl_ok,
             emcy_clear_o             => emcy_clear,
             emcy_pop_o               => emcy_pop,
             sdo_req_o                => sdo_req,

@@ -56,12 +56,17 @@ entity canopen_node_monitor is
         tick_ms_i : in    std_logic;                     -- 1-cycle strobe every ms
         time_ms_i : in    std_logic_vector(31 downto 0); -- free-running ms counter
         -- per-slot configuration, slot k in bits k*w+w-1 .. k*w
-        cfg_node_i          : in    std_logic_vector(7 * MAX_NODES - 1 downto 0);  -- node-ID
-        cfg_mode_i          : in    std_logic_vector(2 * MAX_NODES - 1 downto 0);  -- 01 hb, 10 ng
-        cfg_time_i          : in    std_logic_vector(16 * MAX_NODES - 1 downto 0); -- T or G [ms]
-        cfg_life_i          : in    std_logic_vector(8 * MAX_NODES - 1 downto 0);  -- life factor
-        cfg_autostart_i     : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- start on boot
-        cfg_reset_on_loss_i : in    std_logic_vector(MAX_NODES - 1 downto 0);      -- reset on loss
+        cfg_node_i          : in    std_logic_vector(7 * MAX_NODES - 1 downto 0); -- node-ID
+        cfg_mode_i          : in    std_logic_vector(2 * MAX_NODES - 1 downto 0); -- 01 hb, 10 ng
+        cfg_autostart_i     : in    std_logic_vector(MAX_NODES - 1 downto 0);     -- start on boot
+        cfg_reset_on_loss_i : in    std_logic_vector(MAX_NODES - 1 downto 0);     -- reset on loss
+        -- per-slot time and life time factor: written into this block's RAM one slot at a
+        -- time; a slot not written since reset (cfg_tl_ok_i = 0) has time 0 and factor 0
+        cfg_tl_we_i   : in    std_logic;                                -- strobe: write slot
+        cfg_tl_slot_i : in    std_logic_vector(4 downto 0);             -- slot (>= MAX_NODES: none)
+        cfg_tl_time_i : in    std_logic_vector(15 downto 0);            -- T or G [ms]
+        cfg_tl_life_i : in    std_logic_vector(7 downto 0);             -- life time factor
+        cfg_tl_ok_i   : in    std_logic_vector(MAX_NODES - 1 downto 0); -- slot written
         -- per-slot status
         st_alive_o  : out   std_logic_vector(MAX_NODES - 1 downto 0); -- heard, not expired
         st_lost_o   : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: loss
@@ -132,6 +137,13 @@ architecture rtl of canopen_node_monitor is
     constant w_node_c  : natural := 43; -- 49..43
     constant w_mode_c  : natural := 50; -- 51..50
     constant slot_w_c  : natural := 52;
+    -- time RAM word: time, life time factor, time /= 0, time <= 1, factor /= 0
+    constant tl_time_c : natural := 0;  -- 15..0
+    constant tl_life_c : natural := 16; -- 23..16
+    constant tl_tnz_c  : natural := 24;
+    constant tl_tle1_c : natural := 25;
+    constant tl_lnz_c  : natural := 26;
+    constant tl_w_c    : natural := 27;
 
     function check_config return boolean is
     begin
@@ -209,21 +221,29 @@ architecture rtl of canopen_node_monitor is
     signal rd_1h : std_logic_vector(MAX_NODES - 1 downto 0);
     signal visit : std_logic;
     -- configuration of the slot read in this cycle (ram_raddr), and registered: of eng_slot
-    -- (shared datapath), with its heartbeat / guarding / supervision flags and its valid bit
+    -- (shared datapath), with its heartbeat / guarding / supervision flags and its valid bit;
+    -- time and life time factor come from the time RAM read at ram_raddr, with the flags
+    -- computed when they were written (time /= 0, time <= 1, factor /= 0)
     signal m_node     : node_id_t;
     signal m_mode     : std_logic_vector(1 downto 0);
-    signal m_time     : unsigned(15 downto 0);
-    signal m_life     : unsigned(7 downto 0);
+    signal m_ok       : std_logic;
     signal m_valid    : std_logic;
     signal v_node     : node_id_t;
     signal v_mode     : std_logic_vector(1 downto 0);
     signal v_time     : unsigned(15 downto 0);
     signal v_life     : unsigned(7 downto 0);
+    signal v_hb_cfg   : boolean;
+    signal v_ng_cfg   : boolean;
     signal v_hb       : boolean;
     signal v_guard    : boolean;
     signal v_sup      : boolean;
     signal v_time_le1 : boolean;
     signal v_valid    : std_logic;
+    -- time RAM: write slot in range, word written (time, factor, the three flags), word read
+    signal tl_we    : std_logic;
+    signal tl_waddr : slot_t;
+    signal tl_wdata : std_logic_vector(tl_w_c - 1 downto 0);
+    signal tl_rdata : std_logic_vector(tl_w_c - 1 downto 0);
     -- result of the visit: slot word, node heard, boot-up, toggle error, configuration
     -- changed, RTR outstanding, loss / RTR due at the next tick
     signal vis_word     : std_logic_vector(slot_w_c - 1 downto 0);
@@ -590,35 +610,28 @@ begin
 
     -- configuration of the slot read in this cycle, registered with the read for its visit
     -- (an AND-OR with the one-hot slot: no index decoding on the matcher's path)
-    cfg_mux_proc : process (cfg_life_i, cfg_mode_i, cfg_node_i, cfg_time_i, rd_1h, valid_q) is
+    cfg_mux_proc : process (cfg_mode_i, cfg_node_i, cfg_tl_ok_i, rd_1h, valid_q) is
 
         variable node_v : node_id_t;
         variable mode_v : std_logic_vector(1 downto 0);
-        variable time_v : std_logic_vector(15 downto 0);
-        variable life_v : std_logic_vector(7 downto 0);
 
     begin
 
         node_v := (others => '0');
         mode_v := (others => '0');
-        time_v := (others => '0');
-        life_v := (others => '0');
 
         for k in 0 to MAX_NODES - 1 loop
 
             if rd_1h(k) = '1' then
                 node_v := node_v or cfg_node_i(7 * k + 6 downto 7 * k);
                 mode_v := mode_v or cfg_mode_i(2 * k + 1 downto 2 * k);
-                time_v := time_v or cfg_time_i(16 * k + 15 downto 16 * k);
-                life_v := life_v or cfg_life_i(8 * k + 7 downto 8 * k);
             end if;
 
         end loop;
 
         m_node  <= node_v;
         m_mode  <= mode_v;
-        m_time  <= unsigned(time_v);
-        m_life  <= unsigned(life_v);
+        m_ok    <= or_reduce(rd_1h and cfg_tl_ok_i);
         m_valid <= or_reduce(rd_1h and valid_q);
 
     end process cfg_mux_proc;
@@ -628,20 +641,52 @@ begin
     begin
 
         if rising_edge(clk_i) then
-            v_node     <= m_node;
-            v_mode     <= m_mode;
-            v_time     <= m_time;
-            v_life     <= m_life;
-            v_hb       <= m_node /= node_none_c and m_mode = mode_heartbeat_c and m_time /= 0;
-            v_guard    <= m_node /= node_none_c and m_mode = mode_guarding_c and m_time /= 0;
-            v_sup      <= m_node /= node_none_c and m_time /= 0
-                          and (m_mode = mode_heartbeat_c
-                                 or (m_mode = mode_guarding_c and m_life /= 0));
-            v_valid    <= m_valid;
-            v_time_le1 <= m_time <= 1;
+            v_node   <= m_node;
+            v_mode   <= m_mode;
+            v_hb_cfg <= m_node /= node_none_c and m_mode = mode_heartbeat_c and m_ok = '1';
+            v_ng_cfg <= m_node /= node_none_c and m_mode = mode_guarding_c and m_ok = '1';
+            v_valid  <= m_valid;
         end if;
 
     end process cfg_reg_proc;
+
+    -- time RAM: written by the host block (NODE_TIME), read with the slot word (ram_raddr), so
+    -- its word belongs to eng_slot in the visit cycle, like the registers above. A slot not
+    -- written since reset reads as time 0 (v_hb_cfg / v_ng_cfg are false: time and factor
+    -- are not used then)
+    tl_we    <= cfg_tl_we_i when unsigned(cfg_tl_slot_i) < MAX_NODES else
+                '0';
+    tl_waddr <= to_integer(unsigned(cfg_tl_slot_i)) when unsigned(cfg_tl_slot_i) < MAX_NODES else
+                0;
+
+    tl_wdata(tl_time_c + 15 downto tl_time_c) <= cfg_tl_time_i;
+    tl_wdata(tl_life_c + 7 downto tl_life_c)  <= cfg_tl_life_i;
+    tl_wdata(tl_tnz_c)                        <= or_reduce(cfg_tl_time_i);
+    tl_wdata(tl_tle1_c)                       <= not or_reduce(cfg_tl_time_i(15 downto 1));
+    tl_wdata(tl_lnz_c)                        <= or_reduce(cfg_tl_life_i);
+
+    tl_ram_inst : entity work.canopen_sdp_ram
+        generic map (
+            DEPTH => MAX_NODES,
+            WIDTH => tl_w_c
+        )
+        port map (
+            clk_i   => clk_i,
+            we_i    => tl_we,
+            waddr_i => tl_waddr,
+            wdata_i => tl_wdata,
+            re_i    => one,
+            raddr_i => ram_raddr,
+            rdata_o => tl_rdata
+        );
+
+    v_time     <= unsigned(tl_rdata(tl_time_c + 15 downto tl_time_c));
+    v_life     <= unsigned(tl_rdata(tl_life_c + 7 downto tl_life_c));
+    v_time_le1 <= tl_rdata(tl_tle1_c) = '1';
+    v_hb       <= v_hb_cfg and tl_rdata(tl_tnz_c) = '1';
+    v_guard    <= v_ng_cfg and tl_rdata(tl_tnz_c) = '1';
+    v_sup      <= tl_rdata(tl_tnz_c) = '1'
+                  and (v_hb_cfg or (v_ng_cfg and tl_rdata(tl_lnz_c) = '1'));
 
     -- ---------------------------------------------------------------------------------------------
     -- The shared slot datapath: in this order, frame taken by the FSM, received frame, tick(s)

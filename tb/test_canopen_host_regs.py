@@ -115,15 +115,23 @@ RW_OUTPUTS = {
     ("NODE_CFG", "NODE_ID"): "node_cfg_node_o", ("NODE_CFG", "MODE"): "node_cfg_mode_o",
     ("NODE_CFG", "AUTOSTART"): "node_cfg_autostart_o",
     ("NODE_CFG", "RESET_ON_LOSS"): "node_cfg_reset_on_loss_o",
-    ("NODE_TIME", "TIME_MS"): "node_cfg_time_o", ("NODE_TIME", "LIFE_FACTOR"): "node_cfg_life_o",
+    # NODE_TIME: the node monitor's copy, rebuilt from the write port (TB.node_time_copy)
+    ("NODE_TIME", "TIME_MS"): "node_tl_time_o", ("NODE_TIME", "LIFE_FACTOR"): "node_tl_life_o",
     ("ACFG_CTRL", "START_NODES"): "acfg_start_nodes_o",
     ("ACFG_ENTRY", "NODE"): "acfg_tbl_node_o", ("ACFG_ENTRY", "SIZE"): "acfg_tbl_size_o",
     ("ACFG_OBJ", "INDEX"): "acfg_tbl_index_o", ("ACFG_OBJ", "SUBINDEX"): "acfg_tbl_sub_o",
     ("SDO_SEL", "CHAN"): "sdo_chan_o", ("ACFG_FAIL_SEL", "INDEX"): "acfg_fail_sel_o",
 }
 
+#: RW fields whose port is a write port (valid with its strobe), not a register output
+COPY_OUTPUTS = {"node_tl_time_o", "node_tl_life_o"}
+
+#: strobes that are a RAM write enable (one cycle per write, not per command)
+WRITE_PORTS = {"node_tl_we_o"}
+
 #: pulse outputs and the output fields sampled with them
 STROBES = {
+    "node_tl_we_o": ("node_tl_slot_o", "node_tl_time_o", "node_tl_life_o"),
     "reinit_o": (), "nmt_req_o": ("nmt_cs_o", "nmt_node_o"), "node_clear_o": (),
     "emcy_clear_o": (), "emcy_pop_o": (),
     "sdo_req_o": ("sdo_node_o", "sdo_upload_o", "sdo_size_o", "sdo_index_o", "sdo_subindex_o"),
@@ -175,6 +183,7 @@ class TB:
             getattr(dut, name).value = 0
         self.host = CanopenMasterHost(dut, dut.clk_i, max_polls=200, poll_cycles=4)
         self.cycle = 0
+        self.reset_cycle = 0
         #: bench-side model of the SDO client's buffer RAM, word address -> word
         self.ram: dict[int, int] = {}
         self.ram_extra_latency = 0  # fault injection for the can-fail test
@@ -214,7 +223,9 @@ class TB:
             for name, fields in STROBES.items():
                 v = getattr(dut, name).value
                 if v.is_resolvable and int(v):
-                    assert last_high.get(name) != self.cycle - 1, \
+                    # a write port's enable is high once per write, in consecutive cycles for
+                    # writes in consecutive cycles; a command strobe never
+                    assert name in WRITE_PORTS or last_high.get(name) != self.cycle - 1, \
                         f"{name} high for more than one cycle (cycle {self.cycle})"
                     last_high[name] = self.cycle
                     snap = {f: int(getattr(dut, f).value) for f in fields}
@@ -340,6 +351,7 @@ class TB:
 
     async def reset(self) -> None:
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
+        self.reset_cycle = self.cycle
 
     async def strobe(self, name: str, value: int = 1, cycles: int = 1) -> None:
         """Drive input ``name`` to ``value`` for ``cycles`` cycles (changes at falling edges)."""
@@ -356,8 +368,28 @@ class TB:
     def slot_field(self, port: str, slot: int, w: int) -> int:
         return (int(getattr(self.dut, port).value) >> (slot * w)) & ((1 << w) - 1)
 
+    def node_time_copy(self, slot: int) -> dict[str, int]:
+        """The node monitor's copy of NODE_TIME(slot) as the write port built it: the fields of
+        the slot's last write since reset, 0 for a slot never written (node_tl_ok_o must say
+        which)."""
+        writes = [f for c, n, _, f in self.pulses
+                  if n == "node_tl_we_o" and c > self.reset_cycle and f["node_tl_slot_o"] == slot]
+        ok = (int(self.dut.node_tl_ok_o.value) >> slot) & 1
+        assert ok == bool(writes), f"node_tl_ok_o({slot}) = {ok} after {len(writes)} writes"
+        return {p: writes[-1][p] if writes else 0 for p in sorted(COPY_OUTPUTS)}
+
+    def outputs(self) -> dict[str, int]:
+        """Every RW output (the NODE_TIME copy of every slot for the write port)."""
+        out = {p: int(getattr(self.dut, p).value) for p in RW_OUTPUTS.values()
+               if p not in COPY_OUTPUTS}
+        for k in range(self.max_nodes):
+            out |= {f"{p}({k})": v for p, v in self.node_time_copy(k).items()}
+        return out
+
     def output_of(self, reg: str, field: str, slot: int | None) -> int:
         port = RW_OUTPUTS[(reg, field)]
+        if port in COPY_OUTPUTS:
+            return self.node_time_copy(slot)[port]
         if slot is None:
             return int(getattr(self.dut, port).value)
         return self.slot_field(port, slot, width(field_info(reg, field)))
@@ -462,6 +494,73 @@ async def run_rw_reset_values_and_readback(dut):
     await host.write("SDO_COB", 0)
     await host.write("SDO_COB", 0xFFFFFFFF, byteenable=0b0100)
     assert await host.read("SDO_COB") == 0x00FF0000
+
+
+@cocotb.test(timeout_time=1, timeout_unit="ms")
+async def run_node_time_ram_back_to_back(dut):
+    """Purpose: NODE_TIME lives in a RAM; writes and reads on consecutive cycles see each other.
+
+    Verifies: with the bus request in every cycle (pins driven directly), a partial write to a
+    slot never written since reset merges with 0 (not with the RAM's undefined power-up word);
+    a partial write in the cycle after a write to the same slot merges with that write's word
+    (which the RAM does not return yet), and a read in the next cycle returns it; a write two
+    cycles later merges with the RAM's word; a write to another slot in between does not
+    disturb it; every write drives node_tl_we_o once with the slot's whole new word.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    n = tb.max_nodes
+    s, t, u = 0, 1 % n, (n - 1)
+    ops: list[tuple] = []
+    expect: list[int] = []
+    if n >= 3:  # u untouched so far: a partial write merges with 0
+        ops += [("w", u, 0xFFFFFFFF, 0b0001), ("r", u)]
+        expect += [0x000000FF]
+    ops += [("w", s, 0x00123456, 0xF), ("w", s, 0xFFFFABFF, 0b0010), ("r", s),
+            ("w", s, 0x00CD0000, 0b0100)]
+    expect += [0x0012AB56]
+    if n >= 2:
+        ops += [("w", t, 0x00000001, 0xF)]
+    ops += [("r", s)]
+    expect += [0x00CDAB56]
+    if n >= 2:
+        ops += [("r", t)]
+        expect += [0x00000001]
+    got: list[int] = []
+
+    async def collect() -> None:
+        while True:
+            await RisingEdge(dut.clk_i)
+            await ReadOnly()
+            if dut.avs_readdatavalid_o.value == 1:
+                got.append(int(dut.avs_readdata_o.value))
+
+    mon = cocotb.start_soon(collect())
+    c0 = tb.cycle
+    await FallingEdge(dut.clk_i)
+    for op in ops:
+        dut.avs_address_i.value = R.addr("NODE_TIME", op[1])
+        dut.avs_read_i.value = int(op[0] == "r")
+        dut.avs_write_i.value = int(op[0] == "w")
+        dut.avs_writedata_i.value = op[2] if op[0] == "w" else 0
+        dut.avs_byteenable_i.value = op[3] if op[0] == "w" else 0
+        await FallingEdge(dut.clk_i)
+    dut.avs_read_i.value = 0
+    dut.avs_write_i.value = 0
+    dut.avs_byteenable_i.value = 0
+    await tb.settle()
+    mon.cancel()
+    assert got == expect, [hex(g) for g in got]
+    words = [(f["node_tl_slot_o"], f["node_tl_life_o"] << 16 | f["node_tl_time_o"])
+             for _, _, f in tb.pulses_of("node_tl_we_o", c0)]
+    want = [(u, 0xFF)] if n >= 3 else []
+    want += [(s, 0x00123456), (s, 0x0012AB56), (s, 0x00CDAB56)]
+    want += [(t, 0x00000001)] if n >= 2 else []
+    assert words == want, words
+    # the host driver agrees, and the node monitor's copy is the last word of each slot
+    assert await tb.host.read("NODE_TIME", s) == 0x00CDAB56
+    assert tb.output_of("NODE_TIME", "LIFE_FACTOR", s) == 0xCD
+    assert tb.output_of("NODE_TIME", "TIME_MS", s) == 0xAB56
 
 
 @cocotb.test(timeout_time=2, timeout_unit="ms")
@@ -641,6 +740,15 @@ async def run_pulses_one_cycle_with_fields(dut):
     assert await host.read("ACFG_STATUS") & R.ACFG_STATUS_DONE
     await host.write("ACFG_CTRL", R.ACFG_CTRL_START)
     assert not await host.read("ACFG_STATUS") & R.ACFG_STATUS_DONE
+    # NODE_TIME: the write port carries the slot's whole merged word
+    slot = tb.max_nodes - 1
+    c0 = tb.cycle
+    await host.write("NODE_TIME", R.make("NODE_TIME", TIME_MS=0x1234, LIFE_FACTOR=0x56), slot)
+    await host.write("NODE_TIME", 0xFFFFFFAB, slot, byteenable=0b0001)
+    await tb.settle()
+    assert [g[2] for g in tb.pulses_of("node_tl_we_o", c0)] == [
+        {"node_tl_slot_o": slot, "node_tl_time_o": 0x1234, "node_tl_life_o": 0x56},
+        {"node_tl_slot_o": slot, "node_tl_time_o": 0x12AB, "node_tl_life_o": 0x56}]
     strobes_seen = {n for _, n, _, _ in tb.pulses}
     assert strobes_seen == set(STROBES), strobes_seen
 
@@ -899,7 +1007,7 @@ async def run_unlisted_addresses_read_zero(dut):
     for name, slot in tb.rw_registers():
         await host.write(name, tb.random_rw(name), slot)
     before = {n: await host.read(n, s) for n, s in tb.rw_registers()}
-    outputs = {p: int(getattr(dut, p).value) for p in RW_OUTPUTS.values()}
+    outputs = tb.outputs()
     unmapped = sorted(set(range(256)) - tb.mapped_addresses())
     assert len(unmapped) == 256 - len(tb.mapped_addresses())
     c0 = tb.cycle
@@ -909,7 +1017,7 @@ async def run_unlisted_addresses_read_zero(dut):
         assert await host.read(a) == 0, f"address {a:#04x} not 0"
     assert tb.pulses_of("reinit_o", c0) == [] and not [p for p in tb.pulses if p[0] > c0]
     assert {n: await host.read(n, s) for n, s in tb.rw_registers()} == before
-    assert {p: int(getattr(dut, p).value) for p in outputs} == outputs
+    assert tb.outputs() == outputs
     assert await host.irq_status() == 0 and await host.counters() == dict.fromkeys(
         (n.lower() for n in COUNTER_NAMES), 0)
 
@@ -990,6 +1098,7 @@ CONFIGS = {
                             "run_pulses_one_cycle_with_fields", "run_sdo_channel_select",
                             "run_unlisted_addresses_read_zero"]),
     "nodes1_cnt4": (1, 4, 1, ["run_counters_increment_saturate_clear",
+                              "run_node_time_ram_back_to_back",
                               "run_rw_reset_values_and_readback", "run_sdo_channel_select",
                               "run_unlisted_addresses_read_zero"]),
 }

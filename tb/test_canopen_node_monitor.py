@@ -22,7 +22,16 @@ from dataclasses import dataclass
 import can
 import cocotb
 import pytest
-from cocotb.triggers import Event, FallingEdge, First, ReadOnly, RisingEdge, Timer, ValueChange
+from cocotb.triggers import (
+    ClockCycles,
+    Event,
+    FallingEdge,
+    First,
+    ReadOnly,
+    RisingEdge,
+    Timer,
+    ValueChange,
+)
 
 from sim_models.can_bus import CanBus, QueueNode
 from sim_models.canopen_slave import CanopenSlave, NmtState, build_slaves, make_message
@@ -118,13 +127,23 @@ class TB:
         self.events = self.strobes.events
         for sig in (dut.tick_ms_i, dut.time_ms_i, dut.st_clear_i, dut.emcy_clear_i,
                     dut.emcy_pop_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_rtr_i,
-                    dut.rx_dlc_i, dut.rx_data_i, dut.st_rd_slot_i):
+                    dut.rx_dlc_i, dut.rx_data_i, dut.st_rd_slot_i, dut.cfg_tl_we_i,
+                    dut.cfg_tl_slot_i, dut.cfg_tl_time_i, dut.cfg_tl_life_i, dut.cfg_tl_ok_i):
             sig.value = 0
+        #: (time, life) of each slot as written into the DUT's time RAM since reset (the host
+        #: block's NODE_TIME write port: one slot per cycle); None = not written (reads 0)
+        self.tl_written: list[tuple[int, int] | None] = [None] * self.n
+        self._tl_wake = Event()
         self.apply_cfg()
 
     # ------------------------------------------------------------------ set-up
     async def start(self) -> None:
         """Reset the DUT, start the time base and the FSM, power the slaves on."""
+        # the time RAM is written while reset is held (it has no reset; cfg_tl_ok_i is driven
+        # here), so the first configuration is in place at reset like the other cfg inputs
+        self.dut.rst_n_i.value = 0
+        cocotb.start_soon(self._tl_writer())
+        await ClockCycles(self.dut.clk_i, self.n + 2)
         await reset_active_low(self.dut.clk_i, self.dut.rst_n_i)
         cocotb.start_soon(self._ms_timebase())
         cocotb.start_soon(self._fsm())
@@ -146,21 +165,44 @@ class TB:
 
     def apply_cfg(self) -> None:
         n, d = self.n, self.dut
-        vals = {"node": 0, "mode": 0, "time": 0, "life": 0, "auto": 0, "rol": 0}
+        vals = {"node": 0, "mode": 0, "auto": 0, "rol": 0}
         for k, c in enumerate(self.cfg):
             vals["node"] |= c.node << (7 * k)
             vals["mode"] |= c.mode << (2 * k)
-            vals["time"] |= c.time_ms << (16 * k)
-            vals["life"] |= c.life << (8 * k)
             vals["auto"] |= int(c.autostart) << k
             vals["rol"] |= int(c.reset_on_loss) << k
         assert vals["node"] < 1 << (7 * n)
         d.cfg_node_i.value = vals["node"]
         d.cfg_mode_i.value = vals["mode"]
-        d.cfg_time_i.value = vals["time"]
-        d.cfg_life_i.value = vals["life"]
         d.cfg_autostart_i.value = vals["auto"]
         d.cfg_reset_on_loss_i.value = vals["rol"]
+        self._tl_wake.set()  # time and life factor: through the write port
+
+    async def _tl_writer(self) -> None:
+        """The host block's NODE_TIME write port: every slot whose (time, life) differs from
+        what the DUT holds is written, one slot per cycle (strobe, slot, word), and its bit of
+        cfg_tl_ok_i is set with the write's edge, as canopen_host_regs does."""
+        d = self.dut
+        ok = 0
+        while True:
+            await FallingEdge(d.clk_i)
+            d.cfg_tl_we_i.value = 0
+            d.cfg_tl_ok_i.value = ok
+            todo = [k for k, c in enumerate(self.cfg)
+                    if self.tl_written[k] != (c.time_ms, c.life)
+                    and not (self.tl_written[k] is None and (c.time_ms, c.life) == (0, 0))]
+            if not todo:
+                self._tl_wake.clear()
+                await self._tl_wake.wait()
+                continue
+            k = todo[0]
+            c = self.cfg[k]
+            d.cfg_tl_we_i.value = 1
+            d.cfg_tl_slot_i.value = k
+            d.cfg_tl_time_i.value = c.time_ms
+            d.cfg_tl_life_i.value = c.life
+            self.tl_written[k] = (c.time_ms, c.life)
+            ok |= 1 << k
 
     def model(self, fn, *args, **kw):
         """Call a model method at the current simulated time."""
