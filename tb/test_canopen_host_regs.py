@@ -1111,7 +1111,9 @@ def test_canopen_host_regs(request, config):
     run_cocotb(toplevel="canopen_host_regs", module="tb.test_canopen_host_regs",
                name=request.node.name,
                parameters={"MAX_NODES": max_nodes, "CNT_BITS": cnt_bits, "N_SDO": n_sdo},
-               testcase=tests)
+               # cocotb-bus's Avalon master drives 'x' on the idle address, which the NODE_TIME
+               # RAM's slot decode reads in every cycle (numeric_std warnings only)
+               testcase=tests, ieee_asserts="disable")
 
 
 def _load_generator():
