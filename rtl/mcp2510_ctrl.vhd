@@ -410,6 +410,7 @@ architecture rtl of mcp2510_ctrl is
     -- the INT just read asks for an error poll
     signal poll_on_int : std_logic;
     signal terr_pend   : natural range 0 to 63;
+    signal terr_add    : natural range 0 to 32; -- errors of the last TEC read, added a cycle later
 
     -- values read on an INT
     signal intf_q    : byte_t;
@@ -430,7 +431,15 @@ architecture rtl of mcp2510_ctrl is
     signal cmd_addr  : byte_t;
     signal cmd_len   : std_logic_vector(3 downto 0);
     signal cmd_rxbuf : std_logic;
-    signal cmd_wdata : std_logic_vector(111 downto 0);
+    -- write bytes: cmd_wd holds the data phase of every state except S_TX_LOAD (constants and a
+    -- byte or two of flags), txl_regs the queued frame in TX buffer register order, txl_hdr = 1
+    -- when the TX load starts at TXBnCTRL (priority changed); the executor asks for byte
+    -- cmd_widx and gets cmd_wbyte in the same cycle
+    signal cmd_wd    : std_logic_vector(111 downto 0);
+    signal txl_regs  : std_logic_vector(103 downto 0);
+    signal txl_hdr   : std_logic;
+    signal cmd_widx  : std_logic_vector(3 downto 0);
+    signal cmd_wbyte : byte_t;
     signal rsp_valid : std_logic;
     signal rsp_rdata : std_logic_vector(111 downto 0);
 
@@ -514,14 +523,12 @@ begin
     -- Command table: the MCP2510 instruction each sequencer state issues (latched by the
     -- executor on cmd_valid, one cycle after the state is entered).
     -- ---------------------------------------------------------------------------------------------
-    cmd_table_proc : process (buf_idx, cancel_buf, cancel_op, intf_q, rx_buf, state, txp_cache,
-                              txp_known, txq_buf, txq_data, txq_dlc, txq_id, txq_ide, txq_rtr,
-                              txq_txp) is
+    cmd_table_proc : process (buf_idx, cancel_buf, cancel_op, intf_q, rx_buf, state, txl_hdr,
+                              txq_buf, txq_dlc, txq_rtr) is
 
         variable wd     : std_logic_vector(111 downto 0);
         variable hdr    : natural range 0 to 1;
         variable n_data : natural range 0 to 8;
-        variable k      : natural range 0 to 104;
 
     begin
 
@@ -651,30 +658,12 @@ begin
                 cmd_addr       <= MCP_EFLG_C;
                 cmd_len        <= x"2";
 
-            -- TX buffer load: from TXBnCTRL when the priority changes, else from TXBnSIDH
+            -- TX buffer load: from TXBnCTRL when the priority changes, else from TXBnSIDH; the
+            -- bytes come from txl_regs (cmd_byte_proc)
             when S_TX_LOAD =>
 
-                if txp_known(txq_buf) = '1' and txp_cache(txq_buf) = txq_txp then
-                    hdr := 0;
-                else
-                    hdr            := 1;
-                    wd(7 downto 0) := "000000" & txq_txp;
-                end if;
-
-                if txq_ide = '1' then
-                    wd(8 * hdr + 7 downto 8 * hdr)       := txq_id(28 downto 21);
-                    wd(8 * hdr + 15 downto 8 * hdr + 8)  := (txq_id(20 downto 18) & "000"
-                                                             & txq_id(17 downto 16))
-                                                            or MCP_SIDL_EXIDE_C;
-                    wd(8 * hdr + 23 downto 8 * hdr + 16) := txq_id(15 downto 8);
-                    wd(8 * hdr + 31 downto 8 * hdr + 24) := txq_id(7 downto 0);
-                else
-                    wd(8 * hdr + 7 downto 8 * hdr)      := txq_id(10 downto 3);
-                    wd(8 * hdr + 15 downto 8 * hdr + 8) := txq_id(2 downto 0) & "00000";
-                end if;
-
-                wd(8 * hdr + 39 downto 8 * hdr + 32) := "0" & txq_rtr & "00" & txq_dlc;
-                n_data                               := 0;
+                hdr    := bit_int(txl_hdr);
+                n_data := 0;
 
                 if txq_rtr = '0' then
                     if unsigned(txq_dlc) > 8 then
@@ -683,15 +672,6 @@ begin
                         n_data := to_integer(unsigned(txq_dlc));
                     end if;
                 end if;
-
-                for b in 0 to 7 loop
-
-                    if b < n_data then
-                        k                  := 8 * (hdr + 5 + b);
-                        wd(k + 7 downto k) := txq_data(8 * b + 7 downto 8 * b);
-                    end if;
-
-                end loop;
 
                 cmd_instr <= MCP_INSTR_WRITE_C;
 
@@ -761,9 +741,77 @@ begin
 
         end case;
 
-        cmd_wdata <= wd;
+        cmd_wd <= wd;
 
     end process cmd_table_proc;
+
+    -- the queued frame as the TX buffer registers SIDH, SIDL, EID8, EID0, DLC, D0..D7 (wiring)
+    txl_regs_proc : process (txq_data, txq_dlc, txq_id, txq_ide, txq_rtr) is
+    begin
+
+        if txq_ide = '1' then
+            txl_regs(7 downto 0)   <= txq_id(28 downto 21);
+            txl_regs(15 downto 8)  <= (txq_id(20 downto 18) & "000" & txq_id(17 downto 16))
+                                      or MCP_SIDL_EXIDE_C;
+            txl_regs(23 downto 16) <= txq_id(15 downto 8);
+            txl_regs(31 downto 24) <= txq_id(7 downto 0);
+        else
+            txl_regs(7 downto 0)   <= txq_id(10 downto 3);
+            txl_regs(15 downto 8)  <= txq_id(2 downto 0) & "00000";
+            txl_regs(31 downto 16) <= (others => '0');
+        end if;
+
+        txl_regs(39 downto 32)  <= "0" & txq_rtr & "00" & txq_dlc;
+        txl_regs(103 downto 40) <= txq_data;
+
+    end process txl_regs_proc;
+
+    txl_hdr <= '0' when txp_known(txq_buf) = '1' and txp_cache(txq_buf) = txq_txp else
+               '1';
+
+    -- the data byte the executor asks for: byte cmd_widx of the state's data phase
+    cmd_byte_proc : process (cmd_wd, cmd_widx, state, txl_hdr, txl_regs, txq_txp) is
+
+        variable k : natural range 0 to 15;
+        variable j : natural range 0 to 15;
+
+    begin
+
+        k := to_integer(unsigned(cmd_widx));
+        j := (k - bit_int(txl_hdr)) mod 16;
+
+        if state = S_TX_LOAD then
+            if txl_hdr = '1' and k = 0 then
+                cmd_wbyte <= "000000" & txq_txp;
+            elsif j < 13 then
+                cmd_wbyte <= txl_regs(8 * j + 7 downto 8 * j);
+            else
+                cmd_wbyte <= x"00";
+            end if;
+        elsif k < 14 then
+            cmd_wbyte <= cmd_wd(8 * k + 7 downto 8 * k);
+        else
+            cmd_wbyte <= x"00";
+        end if;
+
+    end process cmd_byte_proc;
+
+    -- simulation only: what the executor reads must not change while a command runs
+    -- pragma translate_off
+    hold_check_proc : process (clk_i) is
+
+        variable held : std_logic_vector(111 + 104 + 3 downto 0);
+
+    begin
+
+        if rising_edge(clk_i) then
+            hold_check(held, cmd_ready = '0', cmd_wd & txl_regs & txl_hdr & txq_txp,
+                       "mcp2510_ctrl: write bytes of the running command (until its response)");
+        end if;
+
+    end process hold_check_proc;
+
+    -- pragma translate_on
 
     -- ---------------------------------------------------------------------------------------------
     -- Sequencer
@@ -1573,10 +1621,11 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Destroyed frames of this node, counted from TEC (+8 per transmit error, -1 per success
     -- while TEC > 0): a poll that reads TEC higher than the previous one reports
-    -- ceil((TEC - previous) / 8) errors on tx_errors_o, one strobe per cycle. Exact while fewer
-    -- than 8 successes of this node lie between two polls (the poll follows every MERRF and,
-    -- while TEC /= 0, every TXnIF); TXBnCTRL.TXERR cannot count, it stays set over the retries
-    -- and MERRF comes for other nodes' errors too (fuzz finding 5).
+    -- ceil((TEC - previous) / 8) errors on tx_errors_o, one strobe per cycle from the second
+    -- cycle after the read. Exact while fewer than 8 successes of this node lie between two polls
+    -- (the poll follows every MERRF and, while TEC /= 0, every TXnIF); TXBnCTRL.TXERR cannot
+    -- count, it stays set over the retries and MERRF comes for other nodes' errors too (fuzz
+    -- finding 5).
     -- ---------------------------------------------------------------------------------------------
     terr_proc : process (clk_i, rst_n_i) is
 
@@ -1589,6 +1638,7 @@ begin
         if rst_n_i = '0' then
             tec_base    <= (others => '0');
             terr_pend   <= 0;
+            terr_add    <= 0;
             tx_errors_o <= '0';
         elsif rising_edge(clk_i) then
             add_v  := 0;
@@ -1607,7 +1657,10 @@ begin
                 tx_errors_o <= '1';
                 pend_v      := pend_v - 1;
             end if;
-            pend_v := pend_v + add_v;
+            -- the errors of a TEC read join the pending ones one cycle later (the subtraction and
+            -- the addition are not on one path)
+            terr_add <= add_v;
+            pend_v   := pend_v + terr_add;
             if pend_v > 63 then
                 pend_v := 63;
             end if;
@@ -1694,7 +1747,8 @@ begin
             cmd_addr_i  => cmd_addr,
             cmd_len_i   => cmd_len,
             cmd_rxbuf_i => cmd_rxbuf,
-            cmd_wdata_i => cmd_wdata,
+            cmd_widx_o  => cmd_widx,
+            cmd_wbyte_i => cmd_wbyte,
             rsp_valid_o => rsp_valid,
             rsp_rdata_o => rsp_rdata,
             rsp_len_o   => open,

@@ -9,7 +9,7 @@
 --   Executes one MCP2510 SPI instruction per command as one gapless SPI transaction:
 --     instruction byte, [address byte], data bytes.
 --   cmd_instr_i is the full first byte; an address byte follows for READ, WRITE and BIT MODIFY.
---   cmd_len_i data bytes follow: taken from cmd_wdata_i (WRITE, BIT MODIFY: mask then data) or
+--   cmd_len_i data bytes follow: taken from cmd_wbyte_i (WRITE, BIT MODIFY: mask then data) or
 --   clocked out as 0x00 while the chip answers (READ, READ STATUS). The bytes the chip sends
 --   during the data phase are returned in rsp_rdata_o (byte k at bits 8k+7..8k), which holds
 --   them from rsp_valid_o until the next command is accepted (mcp2510_ctrl decodes an RX frame
@@ -19,10 +19,10 @@
 --   frame carries (0 for a remote frame, else DLC, at most 8), so a short frame costs fewer SPI
 --   bytes. The transaction ends through the engine's tx_end_i, without a dummy byte.
 --   The block knows the MCP2510 framing, not what the registers mean.
---   cmd_wdata_i is read byte by byte during the transaction, not copied: the caller holds it
---   from the accept (cmd_valid_i with cmd_ready_o) until rsp_valid_o (mcp2510_ctrl builds it
---   from its state and frame registers, which do not change before the response). A
---   simulation-only check (translate_off) reports a change.
+--   Write bytes are asked for one at a time: cmd_widx_o is the index k of the data byte the SPI
+--   engine takes next, and the caller answers with that byte on cmd_wbyte_i in the same cycle
+--   (combinational: mcp2510_ctrl selects it from its state and frame registers, which do not
+--   change before the response). No 14-byte write vector is built or copied anywhere.
 -- =================================================================================================
 
 library ieee;
@@ -31,7 +31,6 @@ library ieee;
 
 library work;
     use work.mcp2510_pkg.all;
-    use work.canopen_util_pkg.all;
 
 entity mcp2510_instr is
     generic (
@@ -46,14 +45,14 @@ entity mcp2510_instr is
         clk_i   : in    std_logic; -- system clock
         rst_n_i : in    std_logic; -- async reset, active low
         -- command
-        cmd_valid_i : in    std_logic;                      -- start a command (when ready)
-        cmd_ready_o : out   std_logic;                      -- idle, a command is accepted
-        cmd_instr_i : in    std_logic_vector(7 downto 0);   -- instruction byte
-        cmd_addr_i  : in    std_logic_vector(7 downto 0);   -- register address
-        cmd_len_i   : in    std_logic_vector(3 downto 0);   -- data bytes (0..14)
-        cmd_rxbuf_i : in    std_logic;                      -- READ of an RX buffer: DLC-limited
-        cmd_wdata_i : in    std_logic_vector(111 downto 0); -- write bytes, byte k = 8k+7..8k,
-        -- held until rsp_valid_o
+        cmd_valid_i : in    std_logic;                    -- start a command (when ready)
+        cmd_ready_o : out   std_logic;                    -- idle, a command is accepted
+        cmd_instr_i : in    std_logic_vector(7 downto 0); -- instruction byte
+        cmd_addr_i  : in    std_logic_vector(7 downto 0); -- register address
+        cmd_len_i   : in    std_logic_vector(3 downto 0); -- data bytes (0..14)
+        cmd_rxbuf_i : in    std_logic;                    -- READ of an RX buffer: DLC-limited
+        cmd_widx_o  : out   std_logic_vector(3 downto 0); -- data byte wanted next (0..13)
+        cmd_wbyte_i : in    std_logic_vector(7 downto 0); -- that byte (WRITE, BIT MODIFY)
         -- response
         rsp_valid_o : out   std_logic;                      -- strobe: command done
         rsp_rdata_o : out   std_logic_vector(111 downto 0); -- bytes read in the data phase
@@ -86,6 +85,8 @@ architecture rtl of mcp2510_instr is
     signal total_known : std_logic;
     -- bytes handed to the engine / received from it
     signal tx_idx : natural range 0 to 16;
+    -- tx_idx - hdr_len mod 16, counted beside tx_idx: the data byte index (cmd_widx_o)
+    signal wr_idx : unsigned(3 downto 0);
     signal rx_idx : natural range 0 to 16;
     -- received data-phase bytes
     signal rdata : std_logic_vector(111 downto 0);
@@ -147,12 +148,11 @@ begin
     eng_tx_valid <= '1' when active = '1' and tx_idx < total else '0';
     eng_tx_last  <= '1' when total_known = '1' and tx_idx = total - 1 else '0';
 
-    -- the write bytes are taken from cmd_wdata_i as the transaction goes (no copy here: the
-    -- caller holds cmd_wdata_i from the accept until rsp_valid_o)
-    tx_byte_proc : process (addr, cmd_wdata_i, hdr_len, instr, tx_idx) is
+    -- the write bytes are asked for one at a time: cmd_widx_o is the data byte index of tx_idx
+    -- (meaningful from tx_idx = hdr_len on), the caller answers on cmd_wbyte_i in the same cycle
+    cmd_widx_o <= std_logic_vector(wr_idx);
 
-        variable k : natural range 0 to 13;
-
+    tx_byte_proc : process (addr, cmd_wbyte_i, hdr_len, instr, tx_idx) is
     begin
 
         if tx_idx = 0 then
@@ -160,8 +160,7 @@ begin
         elsif tx_idx = 1 and hdr_len = 2 then
             eng_tx_data <= addr;
         elsif instr = MCP_INSTR_WRITE_C or instr = MCP_INSTR_BIT_MODIFY_C then
-            k           := (tx_idx - hdr_len) mod 14;
-            eng_tx_data <= cmd_wdata_i(8 * k + 7 downto 8 * k);
+            eng_tx_data <= cmd_wbyte_i;
         else
             eng_tx_data <= x"00";  -- dummy byte while reading
         end if;
@@ -180,6 +179,7 @@ begin
         if rst_n_i = '0' then
             active      <= '0';
             tx_idx      <= 0;
+            wr_idx      <= (others => '0');
             rx_idx      <= 0;
             total       <= 1;
             total_known <= '1';
@@ -196,6 +196,7 @@ begin
                     rxbuf_mode <= cmd_rxbuf_i;
                     hdr_len    <= header_length(cmd_instr_i);
                     tx_idx     <= 0;
+                    wr_idx     <= to_unsigned((16 - header_length(cmd_instr_i)) mod 16, 4);
                     rx_idx     <= 0;
                     rdata      <= (others => '0');
                     active     <= '1';
@@ -212,6 +213,7 @@ begin
             else
                 if eng_tx_valid = '1' and eng_tx_ready = '1' then
                     tx_idx <= tx_idx + 1;
+                    wr_idx <= wr_idx + 1;
                 end if;
 
                 if eng_rx_valid = '1' then
@@ -244,23 +246,6 @@ begin
 
     rsp_rdata_o <= rdata;
     cmd_ready_o <= not active;
-
-    -- simulation only: cmd_wdata_i must not change while a command runs
-    -- pragma translate_off
-    hold_check_proc : process (clk_i) is
-
-        variable held : std_logic_vector(111 downto 0);
-
-    begin
-
-        if rising_edge(clk_i) then
-            hold_check(held, active = '1', cmd_wdata_i,
-                       "mcp2510_instr: cmd_wdata_i (until rsp_valid_o)");
-        end if;
-
-    end process hold_check_proc;
-
-    -- pragma translate_on
 
     -- SPI engine --------------------------------------------------------------------------------
     spi_inst : entity work.mcp2510_spi_master
