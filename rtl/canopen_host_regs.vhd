@@ -471,7 +471,6 @@ architecture rtl of canopen_host_regs is
     signal tl_fwd_v    : std_logic;
     signal tl_fwd_slot : natural range 0 to MAX_NODES - 1;
     signal tl_fwd_word : std_logic_vector(tl_bits_c - 1 downto 0);
-    signal one         : std_logic;
 
 begin
 
@@ -774,7 +773,6 @@ begin
     -- written since reset, else 0) read and merged with the enabled bytes of a write, which
     -- stores the whole word at the end of the act cycle and passes it to the node monitor
     -- ---------------------------------------------------------------------------------------------
-    one      <= '1';
     tl_raddr <= slot_of(avs_address_i);
     tl_slot  <= slot_of(av_addr);
     tl_sel   <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
@@ -800,7 +798,7 @@ begin
             we_i    => tl_wr,
             waddr_i => tl_slot,
             wdata_i => tl_new,
-            re_i    => one,
+            re_i    => '1',
             raddr_i => tl_raddr,
             rdata_o => tl_q
         );

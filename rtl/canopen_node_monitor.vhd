@@ -685,8 +685,7 @@ begin
     v_time_le1 <= tl_rdata(tl_tle1_c) = '1';
     v_hb       <= v_hb_cfg and tl_rdata(tl_tnz_c) = '1';
     v_guard    <= v_ng_cfg and tl_rdata(tl_tnz_c) = '1';
-    v_sup      <= tl_rdata(tl_tnz_c) = '1'
-                  and (v_hb_cfg or (v_ng_cfg and tl_rdata(tl_lnz_c) = '1'));
+    v_sup      <= v_hb or (v_guard and tl_rdata(tl_lnz_c) = '1');
 
     -- ---------------------------------------------------------------------------------------------
     -- The shared slot datapath: in this order, frame taken by the FSM, received frame, tick(s)
