@@ -501,12 +501,13 @@ async def run_guarding_toggle_and_life(dut):
     toggle (guarding_bad_toggle) gives exactly one ev_toggle and sticky st_toggle and the check
     resynchronises; a powered-off node is lost exactly at the (G x factor + 1)-th tick after its
     last reply, polling goes on, and after its power-on boot-up (toggle restarts at 0) it is
-    alive again without a toggle error.
+    alive again without a toggle error; a node guarded with life time factor 0 (node 4: RTRs
+    and toggle check, no life time supervision) is never reported lost while it is off.
     """
     tb = TB(dut)
     g, f = 5, 3
     for node in NODES:
-        tb.slot(node, mode=MODE_GUARD, time_ms=g, life=f, autostart=True)
+        tb.slot(node, mode=MODE_GUARD, time_ms=g, life=0 if node == 4 else f, autostart=True)
     tb.apply_cfg()
     await tb.start()
     await tb.bring_up()
@@ -528,20 +529,26 @@ async def run_guarding_toggle_and_life(dut):
     k2 = tb.slot_of[2]
     assert len(tb.ev("ev_toggle", k2)) == 1 and tb.bit("st_toggle_o", k2) == 1
     assert len(tb.events["ev_toggle"]) == 1
-    # node 3 disappears
-    k3 = tb.slot_of[3]
+    # node 3 disappears, and node 4 (factor 0: not supervised)
+    k3, k4 = tb.slot_of[3], tb.slot_of[4]
     t0 = sim_time_ps()
     await tb.wait_ms(random.uniform(0, g))
     tb.model(tb.slaves[3].power_off)
+    tb.model(tb.slaves[4].power_off)
     await tb.wait_ms(g * f + 2 * g)
     tb.check_loss(k3, 3, g * f, after_ps=t0)
     assert tb.bit("st_alive_o", k3) == 0
     n_rtr = len(tb.tx_frames(0x703, rtr=True))
+    n_rtr4 = len(tb.tx_frames(0x704, rtr=True))
     await tb.wait_ms(2 * g)
     assert len(tb.tx_frames(0x703, rtr=True)) == n_rtr + 2, "polling must go on"
+    assert len(tb.tx_frames(0x704, rtr=True)) == n_rtr4 + 2, "factor 0: polling goes on"
+    assert tb.ev("ev_lost", k4) == [] and tb.bit("st_alive_o", k4) == 1, "factor 0: never lost"
     tb.model(tb.slaves[3].power_on)
+    tb.model(tb.slaves[4].power_on)
     await tb.wait_ms(BOOT_MS + 3 * g)
     assert len(tb.ev("ev_bootup", k3)) == 2 and tb.bit("st_alive_o", k3) == 1
+    assert len(tb.ev("ev_bootup", k4)) == 2
     assert tb.slaves[3].nmt_state is NmtState.OPERATIONAL
     assert len(tb.events["ev_toggle"]) == 1 and len(tb.events["ev_lost"]) == 1
     for node in (1, 2, 4):
