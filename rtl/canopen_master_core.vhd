@@ -19,8 +19,10 @@
 --     re-initialisation (St0), CAN status snapshot.
 --   * canopen_tx_path: generation sources (St2, St8..St10), Transmit_Data with the TX buffer
 --     plan (St11), the controller request (St12), SDO withdrawal and sync TPDO cancel.
---   * Datapath (this file): Receive_Data register and COB-ID classifier (St3/St4), the FSM
---     conditions, event and counter strobes.
+--   * Datapath (this file): Receive_Data and COB-ID classifier (St3/St4), the FSM conditions,
+--     event and counter strobes. Receive_Data is the head of the controller's RX FIFO (a block
+--     RAM output register), not a copy: St3 takes a base frame by leaving it at the head, and
+--     the head is popped at the edge where the FSM leaves St4..St7 (rx_release).
 --   TX buffer plan: TXB2 (TXP 3) holds the next SYNC, preloaded in St2..St12 and started by the
 --   TX2RTS pin at the exact period, so its start never waits for SPI traffic; TXB1 (TXP 2)
 --   carries SDO and NMT; TXB0 (TXP 1) PDOs. A generation (also a reply of St5..St7, St13) is
@@ -92,6 +94,7 @@ entity canopen_master_core is
         ctl_tx_fire_o    : out   std_logic_vector(2 downto 0);  -- pulse: TXnRTS
         ctl_tx_cancel_o  : out   std_logic_vector(2 downto 0);  -- pulse: cancel pending buffer
         ctl_tx_loaded_i  : in    std_logic;                     -- strobe: executed
+        ctl_tx_busy_i    : in    std_logic;                     -- the frame is being written
         ctl_tx_pending_i : in    std_logic_vector(2 downto 0);  -- TXREQ per buffer
         ctl_tx_done_i    : in    std_logic_vector(2 downto 0);  -- strobe: sent
         ctl_tx_err_i     : in    std_logic_vector(2 downto 0);  -- strobe: TXERR
@@ -200,6 +203,7 @@ architecture rtl of canopen_master_core is
     signal cls_sdo      : std_logic;
     signal cls_nmt      : std_logic;
     signal frame_ready  : std_logic;
+    signal gen_ready    : std_logic;
     signal encap_ok     : std_logic;
     signal err_fatal    : std_logic;
     signal err_nmt      : std_logic;
@@ -217,8 +221,12 @@ architecture rtl of canopen_master_core is
     signal tick_ms : std_logic;
     signal time_us : std_logic_vector(31 downto 0);
     signal time_ms : std_logic_vector(31 downto 0);
-    -- Receive_Data (thesis: 13-byte frame register filled in St3)
+    -- Receive_Data (thesis: 13-byte frame register filled in St3): the RX FIFO head, held there
+    -- from St3 until the FSM leaves St4..St7
     signal rx_frame : can_frame_t;
+    -- St4..St7 (a received frame in process) and the last cycle of that (pop the head)
+    signal in_proc    : std_logic;
+    signal rx_release : std_logic;
     -- transmit path (canopen_tx_path): an SDO transfer ended (canopen_sdo_channels
     -- wdr_req_o / wdr_id_o) and its acknowledge; the SDO frame is an abort; TXB0's cancelled
     -- frame was a synchronous TPDO (for the PDO engine's late count)
@@ -262,7 +270,7 @@ architecture rtl of canopen_master_core is
     signal fs_rx_ovf     : std_logic;
     signal fs_tx_fault   : std_logic;
     signal fs_node_err   : std_logic;
-    -- St3 pop
+    -- FIFO pop: an extended frame in St3, or the processed frame (rx_release)
     signal rx_pop : std_logic;
     -- entry strobes into the processing states
     signal enter_sdo : std_logic;
@@ -573,6 +581,12 @@ begin
 
     encap_ok <= in_encap;
 
+    -- St11 rewrites Transmit_Data, which the controller reads while it writes the TX buffer
+    -- (ctl_tx_busy_i: it keeps no copy): a generation state (St2, St8..St10) waits for the end
+    -- of that write. St12 is only left by the load (ctl_tx_busy_i already 0) or by the
+    -- watchdog, so only the second case ever waits here.
+    gen_ready <= frame_ready and not ctl_tx_busy_i;
+
     -- St13: a bus-off or a host request re-initialises the controller (G1); an NMT frame queued
     -- by the node monitor after a node error is sent right away (T28) if TXB1 is free, else
     -- from St1 (T22) once it is
@@ -582,8 +596,48 @@ begin
     -- ---------------------------------------------------------------------------------------------
     -- Datapath: Receive_Data (St3), the registered SYNC half-period condition
     -- ---------------------------------------------------------------------------------------------
-    rx_pop         <= in_rx and ctl_rx_valid_i;
+    -- Receive_Data: the RX FIFO head (the controller's FIFO keeps it, unchanged, until the pop)
+    rx_frame.id   <= ctl_rx_id_i(10 downto 0);
+    rx_frame.rtr  <= ctl_rx_rtr_i;
+    rx_frame.dlc  <= ctl_rx_dlc_i;
+    rx_frame.data <= ctl_rx_data_i;
+
+    -- the edge that leaves St4..St7 pops the frame just processed: St4 without a class (G3),
+    -- St5..St7 when their block is done (T11/T13/T15, T24..T26) or on the watchdog (G4). These
+    -- are the FSM's exit conditions of those states (rx_release_check_proc compares them).
+    in_proc    <= in_parse or in_pdo_proc or in_sdo_proc or in_nmt_proc;
+    rx_release <= '1' when in_parse = '1' and cls_pdo = '0' and cls_sdo = '0' and cls_nmt = '0' else
+                  '1' when in_pdo_proc = '1' and (pdo_rx_done = '1' or watchdog = '1') else
+                  '1' when in_sdo_proc = '1' and (sdo_rx_done = '1' or watchdog = '1') else
+                  '1' when in_nmt_proc = '1' and (mon_rx_done = '1' or watchdog = '1') else
+                  '0';
+    -- St3 drops an extended frame at once (T6); a base frame stays at the head (T7)
+    rx_pop         <= '1' when in_rx = '1' and ctl_rx_valid_i = '1' and rx_head_ok = '0' else
+                      rx_release;
     ctl_rx_ready_o <= rx_pop;
+
+    -- simulation only: rx_release is 1 exactly in the last cycle of St4..St7
+    -- pragma translate_off
+    rx_release_check_proc : process (clk_i) is
+
+        variable proc_q : std_logic := '0';
+        variable rel_q  : std_logic := '0';
+
+    begin
+
+        if rising_edge(clk_i) then
+            if rst_n_i = '1' and proc_q = '1' then
+                assert (rel_q = '1') = (in_proc = '0')
+                    report "canopen_master_core: rx_release does not match the FSM leaving St4..St7"
+                    severity failure;
+            end if;
+            proc_q := in_proc;
+            rel_q  := rx_release;
+        end if;
+
+    end process rx_release_check_proc;
+
+    -- pragma translate_on
 
     datapath_proc : process (clk_i, rst_n_i) is
     begin
@@ -597,14 +651,6 @@ begin
             sync_half <= '0';
             if lt_split(sync_period_half, unsigned(sync_next)) then
                 sync_half <= '1';
-            end if;
-
-            -- St3: Receive_Data ---------------------------------------------------------------
-            if rx_pop = '1' and rx_head_ok = '1' then
-                rx_frame.id   <= ctl_rx_id_i(10 downto 0);
-                rx_frame.rtr  <= ctl_rx_rtr_i;
-                rx_frame.dlc  <= ctl_rx_dlc_i;
-                rx_frame.data <= ctl_rx_data_i;
             end if;
         end if;
 
@@ -783,7 +829,7 @@ begin
             sdo_reply_i    => sdo_reply_now,
             nmt_done_i     => mon_rx_done,
             nmt_reply_i    => nmt_reply_now,
-            frame_ready_i  => frame_ready,
+            frame_ready_i  => gen_ready,
             encap_ok_i     => encap_ok,
             tx_loaded_i    => ctl_tx_loaded_i,
             err_fatal_i    => err_fatal,

@@ -99,6 +99,7 @@ architecture rtl of canopen_master_top is
     signal tx_errors   : std_logic;
     signal tx_drop     : std_logic_vector(2 downto 0);
     signal tx_loaded   : std_logic;
+    signal tx_busy     : std_logic;
     signal rx_valid    : std_logic;
     signal rx_ready    : std_logic;
     signal rx_ide      : std_logic;
@@ -172,6 +173,7 @@ begin
             ctl_tx_cancel_o     => tx_cancel,
             ctl_tx_aborted_i    => tx_aborted,
             ctl_tx_loaded_i     => tx_loaded,
+            ctl_tx_busy_i       => tx_busy,
             ctl_tx_pending_i    => tx_pending,
             ctl_tx_done_i       => tx_done,
             ctl_tx_err_i        => tx_err,
@@ -225,6 +227,7 @@ begin
             tx_abort_i       => '0',
             tx_cancel_i      => tx_cancel,
             tx_loaded_o      => tx_loaded,
+            tx_busy_o        => tx_busy,
             tx_pending_o     => tx_pending,
             tx_done_o        => tx_done,
             tx_err_o         => tx_err,

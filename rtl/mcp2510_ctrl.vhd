@@ -20,8 +20,10 @@
 --     a buffer is only read when the FIFO has room, so nothing is dropped inside the FPGA.
 --   * Transmit: the caller picks the TX buffer and its TXP priority; one WRITE loads it (from
 --     TXBnCTRL when the priority changes, else from TXBnSIDH) and, if tx_send_i, an RTS starts
---     it. A preloaded buffer can be started later by tx_fire_i through its TXnRTS pin, with no
---     SPI traffic (the SYNC path uses this).
+--     it. The frame is not copied: the caller holds tx_id_i .. tx_data_i from the edge that
+--     accepts it (tx_ready_o) while tx_busy_o is 1 (until that WRITE has ended). A preloaded
+--     buffer can be started later by tx_fire_i through its TXnRTS pin, with no SPI traffic
+--     (the SYNC path uses this).
 --   * INT (enabled for TX0-2 done, ERR and MERR): one READ of CANINTF and EFLG, a READ of the
 --     pending buffers' TXBnCTRL after a message error (TXERR/MLOA), one BIT MODIFY clearing the
 --     handled flags and, on receive overflow, one clearing EFLG.RXnOVR. Every cause is reported
@@ -77,6 +79,7 @@ entity mcp2510_ctrl is
         -- transmit request
         tx_valid_i  : in    std_logic;                     -- load (and send) a frame
         tx_ready_o  : out   std_logic;                     -- request accepted now
+        tx_busy_o   : out   std_logic;                     -- the accepted frame is being read
         tx_buf_i    : in    std_logic_vector(1 downto 0);  -- TX buffer 0..2
         tx_txp_i    : in    std_logic_vector(1 downto 0);  -- buffer priority (3 highest)
         tx_send_i   : in    std_logic;                     -- 1: RTS after load; 0: preload
@@ -357,11 +360,9 @@ architecture rtl of mcp2510_ctrl is
     signal txq_buf  : natural range 0 to 2;
     signal txq_txp  : std_logic_vector(1 downto 0);
     signal txq_send : std_logic;
-    signal txq_id   : std_logic_vector(28 downto 0);
-    signal txq_ide  : std_logic;
-    signal txq_rtr  : std_logic;
-    signal txq_dlc  : std_logic_vector(3 downto 0);
-    signal txq_data : std_logic_vector(63 downto 0);
+    -- the frame fields are not copied: the caller holds tx_id_i .. tx_data_i from the accepting
+    -- edge until the WRITE into the TX buffer has ended (txl_busy, tx_busy_o)
+    signal txl_busy : std_logic;
     -- TXP last written per buffer ('1' in txp_known when it is known)
 
     type txp_array_t is array (0 to 2) of std_logic_vector(1 downto 0);
@@ -524,7 +525,7 @@ begin
     -- executor on cmd_valid, one cycle after the state is entered).
     -- ---------------------------------------------------------------------------------------------
     cmd_table_proc : process (buf_idx, cancel_buf, cancel_op, intf_q, rx_buf, state, txl_hdr,
-                              txq_buf, txq_dlc, txq_rtr) is
+                              txq_buf, tx_dlc_i, tx_rtr_i) is
 
         variable wd     : std_logic_vector(111 downto 0);
         variable hdr    : natural range 0 to 1;
@@ -665,11 +666,11 @@ begin
                 hdr    := bit_int(txl_hdr);
                 n_data := 0;
 
-                if txq_rtr = '0' then
-                    if unsigned(txq_dlc) > 8 then
+                if tx_rtr_i = '0' then
+                    if unsigned(tx_dlc_i) > 8 then
                         n_data := 8;
                     else
-                        n_data := to_integer(unsigned(txq_dlc));
+                        n_data := to_integer(unsigned(tx_dlc_i));
                     end if;
                 end if;
 
@@ -745,24 +746,25 @@ begin
 
     end process cmd_table_proc;
 
-    -- the queued frame as the TX buffer registers SIDH, SIDL, EID8, EID0, DLC, D0..D7 (wiring)
-    txl_regs_proc : process (txq_data, txq_dlc, txq_id, txq_ide, txq_rtr) is
+    -- the accepted frame, still held on tx_*_i, as the TX buffer registers SIDH, SIDL, EID8,
+    -- EID0, DLC, D0..D7 (wiring)
+    txl_regs_proc : process (tx_data_i, tx_dlc_i, tx_id_i, tx_ide_i, tx_rtr_i) is
     begin
 
-        if txq_ide = '1' then
-            txl_regs(7 downto 0)   <= txq_id(28 downto 21);
-            txl_regs(15 downto 8)  <= (txq_id(20 downto 18) & "000" & txq_id(17 downto 16))
+        if tx_ide_i = '1' then
+            txl_regs(7 downto 0)   <= tx_id_i(28 downto 21);
+            txl_regs(15 downto 8)  <= (tx_id_i(20 downto 18) & "000" & tx_id_i(17 downto 16))
                                       or MCP_SIDL_EXIDE_C;
-            txl_regs(23 downto 16) <= txq_id(15 downto 8);
-            txl_regs(31 downto 24) <= txq_id(7 downto 0);
+            txl_regs(23 downto 16) <= tx_id_i(15 downto 8);
+            txl_regs(31 downto 24) <= tx_id_i(7 downto 0);
         else
-            txl_regs(7 downto 0)   <= txq_id(10 downto 3);
-            txl_regs(15 downto 8)  <= txq_id(2 downto 0) & "00000";
+            txl_regs(7 downto 0)   <= tx_id_i(10 downto 3);
+            txl_regs(15 downto 8)  <= tx_id_i(2 downto 0) & "00000";
             txl_regs(31 downto 16) <= (others => '0');
         end if;
 
-        txl_regs(39 downto 32)  <= "0" & txq_rtr & "00" & txq_dlc;
-        txl_regs(103 downto 40) <= txq_data;
+        txl_regs(39 downto 32)  <= "0" & tx_rtr_i & "00" & tx_dlc_i;
+        txl_regs(103 downto 40) <= tx_data_i;
 
     end process txl_regs_proc;
 
@@ -796,17 +798,22 @@ begin
 
     end process cmd_byte_proc;
 
-    -- simulation only: what the executor reads must not change while a command runs
+    -- simulation only: what the executor reads must not change while a command runs, and the
+    -- caller holds the accepted frame on tx_*_i while it is written (tx_busy_o)
     -- pragma translate_off
     hold_check_proc : process (clk_i) is
 
-        variable held : std_logic_vector(111 + 104 + 3 downto 0);
+        variable held     : std_logic_vector(111 + 3 downto 0);
+        variable held_frm : std_logic_vector(28 + 1 + 1 + 4 + 64 downto 0);
 
     begin
 
         if rising_edge(clk_i) then
-            hold_check(held, cmd_ready = '0', cmd_wd & txl_regs & txl_hdr & txq_txp,
+            hold_check(held, cmd_ready = '0', cmd_wd & txl_hdr & txq_txp,
                        "mcp2510_ctrl: write bytes of the running command (until its response)");
+            hold_check(held_frm, txl_busy = '1',
+                       tx_id_i & tx_ide_i & tx_rtr_i & tx_dlc_i & tx_data_i,
+                       "mcp2510_ctrl: tx_id_i .. tx_data_i of the accepted frame (tx_busy_o)");
         end if;
 
     end process hold_check_proc;
@@ -867,6 +874,7 @@ begin
             txp_known      <= (others => '0');
             pending        <= (others => '0');
             txb_loaded     <= (others => '0');
+            txl_busy       <= '0';
             err_req        <= '0';
             err_cnt        <= err_poll_c;
             err_valid_o    <= '0';
@@ -1050,11 +1058,7 @@ begin
                         txq_buf  <= to_integer(unsigned(tx_buf_i));
                         txq_txp  <= tx_txp_i;
                         txq_send <= tx_send_i;
-                        txq_id   <= tx_id_i;
-                        txq_ide  <= tx_ide_i;
-                        txq_rtr  <= tx_rtr_i;
-                        txq_dlc  <= tx_dlc_i;
-                        txq_data <= tx_data_i;
+                        txl_busy <= '1';
                         -- a buffer being rewritten must not be fired before the WRITE ends
                         for b in 0 to 2 loop
 
@@ -1187,6 +1191,8 @@ begin
                     if issued = '0' then
                         issue;
                     elsif rsp_valid = '1' then
+                        -- the frame is in the chip: the caller may change tx_*_i
+                        txl_busy <= '0';
                         -- the command table used the old cache while the executor latched it
                         -- static indices: a dynamic-index write makes GHDL 2.0 infer a memory
                         for b in 0 to 2 loop
@@ -1485,6 +1491,7 @@ begin
     busy_o       <= '0' when state = S_IDLE or state = S_FAILED else '1';
     state_o      <= std_logic_vector(to_unsigned(seq_state_t'pos(state), 5));
     tx_pending_o <= pending;
+    tx_busy_o    <= txl_busy;
 
     -- ---------------------------------------------------------------------------------------------
     -- Cancel of single TX buffers (tx_cancel_i): the BIT MODIFY TXBnCTRL.TXREQ = 0 still to send,
