@@ -224,8 +224,7 @@ architecture rtl of canopen_master_core is
     -- Receive_Data (thesis: 13-byte frame register filled in St3): the RX FIFO head, held there
     -- from St3 until the FSM leaves St4..St7
     signal rx_frame : can_frame_t;
-    -- St4..St7 (a received frame in process) and the last cycle of that (pop the head)
-    signal in_proc    : std_logic;
+    -- the last cycle of St4..St7 (a received frame in process): pop the head
     signal rx_release : std_logic;
     -- transmit path (canopen_tx_path): an SDO transfer ended (canopen_sdo_channels
     -- wdr_req_o / wdr_id_o) and its acknowledge; the SDO frame is an abort; TXB0's cancelled
@@ -605,7 +604,6 @@ begin
     -- the edge that leaves St4..St7 pops the frame just processed: St4 without a class (G3),
     -- St5..St7 when their block is done (T11/T13/T15, T24..T26) or on the watchdog (G4). These
     -- are the FSM's exit conditions of those states (rx_release_check_proc compares them).
-    in_proc    <= in_parse or in_pdo_proc or in_sdo_proc or in_nmt_proc;
     rx_release <= '1' when in_parse = '1' and cls_pdo = '0' and cls_sdo = '0' and cls_nmt = '0' else
                   '1' when in_pdo_proc = '1' and (pdo_rx_done = '1' or watchdog = '1') else
                   '1' when in_sdo_proc = '1' and (sdo_rx_done = '1' or watchdog = '1') else
@@ -620,12 +618,14 @@ begin
     -- pragma translate_off
     rx_release_check_proc : process (clk_i) is
 
-        variable proc_q : std_logic := '0';
-        variable rel_q  : std_logic := '0';
+        variable proc_q  : std_logic := '0';
+        variable rel_q   : std_logic := '0';
+        variable in_proc : std_logic;
 
     begin
 
         if rising_edge(clk_i) then
+            in_proc := in_parse or in_pdo_proc or in_sdo_proc or in_nmt_proc;
             if rst_n_i = '1' and proc_q = '1' then
                 assert (rel_q = '1') = (in_proc = '0')
                     report "canopen_master_core: rx_release does not match the FSM leaving St4..St7"
