@@ -224,8 +224,28 @@ architecture rtl of canopen_host_regs is
     -- PDO_WIN window, decoded the same way
     constant pdo_bits_c : natural := clog2(REG_PDO_WIN_WORDS_C);
     constant pdo_win_c  : natural := REG_PDO_WIN_C / REG_PDO_WIN_WORDS_C;
-    -- NODE_TIME RAM word: bits 23..0 of the register (TIME_MS, LIFE_FACTOR)
+    -- NODE_TIME: bits 23..0 of the register (TIME_MS, LIFE_FACTOR)
     constant tl_bits_c : positive := NODE_TIME_LIFE_FACTOR_HI_C + 1;
+
+    -- RW word RAM: the RW registers without side effects or checks, read back from a block
+    -- RAM instead of the read multiplexer (their flip-flops stay where a block uses the value):
+    -- the fixed words below, NODE_CFG(k) and NODE_TIME(k) of each slot. The RAM's address is
+    -- the register address (bits 6..0): no decode before it.
+
+    type addr_list_t is array (natural range <>) of natural;
+
+    constant rw_fixed_c : addr_list_t(0 to 7) :=
+    (
+        REG_IRQ_ENABLE_C,
+        REG_SYNC_PERIOD_US_C,
+        REG_SYNC_WINDOW_US_C,
+        REG_SDO_OBJ_C,
+        REG_SDO_TIMEOUT_MS_C,
+        REG_SDO_COB_C,
+        REG_ACFG_OBJ_C,
+        REG_ACFG_FAIL_SEL_C
+    );
+    constant rw_depth_c : positive            := 128;
 
     function check_config return boolean is
     begin
@@ -239,6 +259,21 @@ architecture rtl of canopen_host_regs is
                and NODE_TIME_LIFE_FACTOR_LO_C = 16 and NODE_TIME_LIFE_FACTOR_HI_C = 23
             report "canopen_host_regs: NODE_TIME is not TIME_MS 15..0, LIFE_FACTOR 23..16"
             severity failure;
+        assert REG_NODE_TIME_C = REG_NODE_CFG_C + 1 and REG_NODE_STRIDE_C = 4
+               and REG_NODE_CFG_C mod 4 = 0
+               and REG_NODE_CFG_C + REG_NODE_SLOTS_MAX_C * REG_NODE_STRIDE_C <= rw_depth_c
+            report "canopen_host_regs: NODE_CFG / NODE_TIME are not words 0 / 1 of 4-word slots "
+                   & "below word 128"
+            severity failure;
+
+        for i in rw_fixed_c'range loop
+
+            assert rw_fixed_c(i) < rw_depth_c
+                report "canopen_host_regs: an RW word of the RW word RAM at or above word 128"
+                severity failure;
+
+        end loop;
+
         assert cnt_num_c = 11
             report "canopen_host_regs: CNT_RX_FRAMES .. CNT_EMCY are not 11 consecutive words"
             severity failure;
@@ -312,6 +347,78 @@ architecture rtl of canopen_host_regs is
         return 0;
 
     end function slot_of;
+
+    -- the register's fields (the bits a write stores; the others read 0)
+
+    function ones (hi, lo : natural) return std_logic_vector is
+    begin
+
+        return at((hi - lo downto 0 => '1'), hi, lo);
+
+    end function ones;
+
+    function rw_mask (addr : std_logic_vector(7 downto 0)) return std_logic_vector is
+    begin
+
+        if is_off(addr, REG_IRQ_ENABLE_C) then
+            return ones(irq_bits_c - 1, 0);
+        elsif is_off(addr, REG_SYNC_PERIOD_US_C) then
+            return ones(SYNC_PERIOD_US_VALUE_HI_C, SYNC_PERIOD_US_VALUE_LO_C);
+        elsif is_off(addr, REG_SYNC_WINDOW_US_C) then
+            return ones(SYNC_WINDOW_US_VALUE_HI_C, SYNC_WINDOW_US_VALUE_LO_C);
+        elsif is_off(addr, REG_SDO_OBJ_C) then
+            return ones(SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
+                   or ones(SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C);
+        elsif is_off(addr, REG_SDO_TIMEOUT_MS_C) then
+            return ones(SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C);
+        elsif is_off(addr, REG_SDO_COB_C) then
+            return ones(SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
+                   or ones(SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C);
+        elsif is_off(addr, REG_ACFG_OBJ_C) then
+            return ones(ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
+                   or ones(ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C);
+        elsif is_off(addr, REG_ACFG_FAIL_SEL_C) then
+            return ones(ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C);
+        end if;
+
+        if addr(0) = '0' then
+            return ones(NODE_CFG_NODE_ID_HI_C, NODE_CFG_NODE_ID_LO_C)
+                   or ones(NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C)
+                   or at('1', NODE_CFG_AUTOSTART_C) or at('1', NODE_CFG_RESET_ON_LOSS_C);
+        end if;
+
+        return ones(tl_bits_c - 1, 0);
+
+    end function rw_mask;
+
+    -- its value after reset (the register map's reset value)
+
+    function rw_reset (addr : std_logic_vector(7 downto 0)) return std_logic_vector is
+    begin
+
+        if is_off(addr, REG_IRQ_ENABLE_C) then
+            return IRQ_ENABLE_RESET_C;
+        elsif is_off(addr, REG_SYNC_PERIOD_US_C) then
+            return SYNC_PERIOD_US_RESET_C;
+        elsif is_off(addr, REG_SYNC_WINDOW_US_C) then
+            return SYNC_WINDOW_US_RESET_C;
+        elsif is_off(addr, REG_SDO_OBJ_C) then
+            return SDO_OBJ_RESET_C;
+        elsif is_off(addr, REG_SDO_TIMEOUT_MS_C) then
+            return SDO_TIMEOUT_MS_RESET_C;
+        elsif is_off(addr, REG_SDO_COB_C) then
+            return SDO_COB_RESET_C;
+        elsif is_off(addr, REG_ACFG_OBJ_C) then
+            return ACFG_OBJ_RESET_C;
+        elsif is_off(addr, REG_ACFG_FAIL_SEL_C) then
+            return ACFG_FAIL_SEL_RESET_C;
+        elsif addr(0) = '0' then
+            return NODE_CFG_RESET_C;
+        end if;
+
+        return NODE_TIME_RESET_C;
+
+    end function rw_reset;
 
     -- a write into the field hi..lo of an RW register: the enabled bytes from the write data,
     -- the others from the register itself (not through the read multiplexer)
@@ -452,25 +559,38 @@ architecture rtl of canopen_host_regs is
     -- CNT_* read: the counter bank's read data selected
     signal rd_cnt : std_logic;
 
-    -- NODE_TIME of every slot in a RAM (a word is bits 23..0 of the register: TIME_MS and
-    -- LIFE_FACTOR). It is read at the slot of the bus address itself (avs_address_i goes only
-    -- into the RAM's address register, like into av_addr), so the word of the registered
-    -- request is there in its act cycle, for the read and for merging a partial write.
-    -- tl_ok marks the slots written since reset (the others read 0); tl_fwd_* hold the word
-    -- written in the previous cycle, which the RAM does not return yet for that slot
-    signal tl_raddr    : natural range 0 to MAX_NODES - 1;
-    signal tl_q        : std_logic_vector(tl_bits_c - 1 downto 0);
-    signal tl_ok       : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal tl_slot     : natural range 0 to MAX_NODES - 1;
-    signal tl_sel      : std_logic;
-    signal tl_wr       : std_logic;
-    signal tl_fwd_hit  : std_logic;
-    signal tl_ok_sel   : std_logic;
-    signal tl_old      : std_logic_vector(tl_bits_c - 1 downto 0);
-    signal tl_new      : std_logic_vector(tl_bits_c - 1 downto 0);
-    signal tl_fwd_v    : std_logic;
-    signal tl_fwd_slot : natural range 0 to MAX_NODES - 1;
-    signal tl_fwd_word : std_logic_vector(tl_bits_c - 1 downto 0);
+    -- RW word RAM. It is read at the bus address itself (avs_address_i goes only into the
+    -- RAM's address register, like into av_addr), so the word of the registered request is
+    -- there in its act cycle, for the read and for merging a partial write. The *_ok flags mark
+    -- the words written since reset (the others read their reset value): fix_ok per fixed
+    -- word, cfg_ok / tl_ok per slot; rw_fwd_* hold the word written in the previous cycle,
+    -- which the RAM does not return yet for that address
+    signal rw_raddr : natural range 0 to rw_depth_c - 1;
+    signal rw_addr  : natural range 0 to rw_depth_c - 1;
+    signal rw_q     : std_logic_vector(31 downto 0);
+    signal rw_fix   : std_logic_vector(rw_fixed_c'range); -- av_addr is fixed word i
+    signal fix_ok   : std_logic_vector(rw_fixed_c'range);
+    signal cfg_ok   : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal tl_ok    : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- the addressed word was written since reset
+    signal rw_ok_sel   : std_logic;
+    signal rw_sel      : std_logic;
+    signal rw_wr       : std_logic;
+    signal rw_fwd_hit  : std_logic;
+    signal rw_old      : std_logic_vector(31 downto 0);
+    signal rw_mrg      : std_logic_vector(31 downto 0); -- old word and written bytes
+    signal rw_new      : std_logic_vector(31 downto 0); -- its fields: the word stored
+    signal rw_fwd_v    : std_logic;
+    signal rw_fwd_addr : natural range 0 to rw_depth_c - 1;
+    signal rw_fwd_word : std_logic_vector(31 downto 0);
+    -- NODE_CFG / NODE_TIME of an existing slot, the slot; the NODE_TIME write passed on to the
+    -- node monitor one cycle later (tl_we_q with the stored word rw_fwd_word, the slot of
+    -- rw_fwd_addr)
+    signal cfg_sel   : std_logic;
+    signal tl_sel    : std_logic;
+    signal tl_slot   : natural range 0 to MAX_NODES - 1;
+    signal tl_we_q   : std_logic;
+    signal tl_slot_q : natural range 0 to MAX_NODES - 1;
 
 begin
 
@@ -768,71 +888,100 @@ begin
                & '0' & cnt_rx_frame_i;
 
     -- ---------------------------------------------------------------------------------------------
-    -- NODE_TIME in RAM: read at the bus address' slot (the word of av_addr in the act cycle),
-    -- the old word (the previous cycle's write to the same slot, the RAM's word of a slot
-    -- written since reset, else 0) read and merged with the enabled bytes of a write, which
-    -- stores the whole word at the end of the act cycle and passes it to the node monitor
+    -- RW word RAM: read at the bus address (the word of av_addr in the act cycle); the old word
+    -- (the previous cycle's write to the same address, the RAM's word if written since reset,
+    -- else the reset value) is read and merged with the enabled bytes of a write, which stores
+    -- the word (its fields only) at the end of the act cycle. NODE_TIME is passed on to the
+    -- node monitor from here
     -- ---------------------------------------------------------------------------------------------
-    tl_raddr <= slot_of(avs_address_i);
-    tl_slot  <= slot_of(av_addr);
-    tl_sel   <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
-                         and nst_off(1 downto 0) = REG_NODE_TIME_C - REG_NODE_CFG_C else
-                '0';
-    tl_wr    <= av_wr and tl_sel;
+    rw_raddr <= to_integer(unsigned(avs_address_i(6 downto 0)));
+    rw_addr  <= to_integer(unsigned(av_addr(6 downto 0)));
 
-    tl_fwd_hit <= '1' when tl_fwd_v = '1' and tl_fwd_slot = tl_slot else
+    rw_fix_gen : for i in rw_fixed_c'range generate
+        rw_fix(i) <= '1' when is_off(av_addr, rw_fixed_c(i)) else
+                     '0';
+    end generate rw_fix_gen;
+
+    tl_slot <= slot_of(av_addr);
+    cfg_sel <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C and nst_off(1 downto 0) = 0 else
+               '0';
+    tl_sel  <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
+                        and nst_off(1 downto 0) = REG_NODE_TIME_C - REG_NODE_CFG_C else
+               '0';
+    rw_sel  <= or_reduce(rw_fix) or cfg_sel or tl_sel;
+    rw_wr   <= av_wr and rw_sel;
+
+    -- the addressed word's flag (qualified by rw_sel: a fixed word's, else the slot's)
+    rw_ok_sel <= or_reduce(rw_fix and fix_ok) when or_reduce(rw_fix) = '1' else
+                 cfg_ok(tl_slot) when av_addr(0) = '0' else
+                 tl_ok(tl_slot);
+
+    rw_fwd_hit <= '1' when rw_fwd_v = '1' and rw_fwd_addr = rw_addr else
                   '0';
-    tl_ok_sel  <= tl_ok(tl_slot);
-    tl_old     <= tl_fwd_word when tl_fwd_hit = '1' else
-                  tl_q when tl_ok_sel = '1' else
-                  (others => '0');
-    tl_new     <= mrg(tl_old, av_wd, be_bits, tl_bits_c - 1, 0);
+    rw_old     <= rw_fwd_word when rw_fwd_hit = '1' else
+                  rw_q when rw_ok_sel = '1' else
+                  rw_reset(av_addr);
+    rw_mrg     <= (rw_old and not be_bits) or wr_ones;
+    rw_new     <= rw_mrg and rw_mask(av_addr);
 
-    tl_ram_inst : entity work.canopen_sdp_ram
+    rw_ram_inst : entity work.canopen_sdp_ram
         generic map (
-            DEPTH => MAX_NODES,
-            WIDTH => tl_bits_c
+            DEPTH => rw_depth_c,
+            WIDTH => 32
         )
         port map (
             clk_i   => clk_i,
-            we_i    => tl_wr,
-            waddr_i => tl_slot,
-            wdata_i => tl_new,
+            we_i    => rw_wr,
+            waddr_i => rw_addr,
+            wdata_i => rw_new,
             re_i    => '1',
-            raddr_i => tl_raddr,
-            rdata_o => tl_q
+            raddr_i => rw_raddr,
+            rdata_o => rw_q
         );
 
-    tl_ctrl_proc : process (clk_i, rst_n_i) is
+    -- a NODE_TIME word counts as written from the edge where the node monitor stores it
+    rw_ctrl_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
+            fix_ok   <= (others => '0');
+            cfg_ok   <= (others => '0');
             tl_ok    <= (others => '0');
-            tl_fwd_v <= '0';
+            rw_fwd_v <= '0';
+            tl_we_q  <= '0';
         elsif rising_edge(clk_i) then
-            tl_fwd_v <= tl_wr;
-            if tl_wr = '1' then
-                tl_ok(tl_slot) <= '1';
+            rw_fwd_v <= rw_wr;
+            tl_we_q  <= av_wr and tl_sel;
+            if av_wr = '1' then
+                fix_ok <= fix_ok or rw_fix;
+            end if;
+            if av_wr = '1' and cfg_sel = '1' then
+                cfg_ok(tl_slot) <= '1';
+            end if;
+            if tl_we_q = '1' then
+                tl_ok(tl_slot_q) <= '1';
             end if;
         end if;
 
-    end process tl_ctrl_proc;
+    end process rw_ctrl_proc;
 
-    -- datapath, qualified by tl_fwd_v (no reset)
-    tl_fwd_proc : process (clk_i) is
+    -- datapath, qualified by rw_fwd_v and tl_we_q (no reset)
+    rw_fwd_proc : process (clk_i) is
     begin
 
         if rising_edge(clk_i) then
-            tl_fwd_slot <= tl_slot;
-            tl_fwd_word <= tl_new;
+            rw_fwd_addr <= rw_addr;
+            rw_fwd_word <= rw_new;
         end if;
 
-    end process tl_fwd_proc;
+    end process rw_fwd_proc;
 
-    node_tl_we_o   <= tl_wr;
-    node_tl_slot_o <= std_logic_vector(to_unsigned(tl_slot, 5));
-    node_tl_time_o <= tl_new(NODE_TIME_TIME_MS_HI_C downto NODE_TIME_TIME_MS_LO_C);
-    node_tl_life_o <= tl_new(NODE_TIME_LIFE_FACTOR_HI_C downto NODE_TIME_LIFE_FACTOR_LO_C);
+    tl_slot_q <= slot_of(std_logic_vector(to_unsigned(rw_fwd_addr, 8)));
+
+    node_tl_we_o   <= tl_we_q;
+    node_tl_slot_o <= std_logic_vector(to_unsigned(tl_slot_q, 5));
+    node_tl_time_o <= rw_fwd_word(NODE_TIME_TIME_MS_HI_C downto NODE_TIME_TIME_MS_LO_C);
+    node_tl_life_o <= rw_fwd_word(NODE_TIME_LIFE_FACTOR_HI_C downto NODE_TIME_LIFE_FACTOR_LO_C);
     node_tl_ok_o   <= tl_ok;
 
     -- ---------------------------------------------------------------------------------------------
@@ -879,21 +1028,16 @@ begin
     -- Read multiplexer: OR of the words whose (disjoint) address matches; registered below
     -- ---------------------------------------------------------------------------------------------
     read_mux_proc : process (acfg_busy_i, acfg_done, acfg_entry, acfg_fail_abort_i,
-                             acfg_fail_entry_i, acfg_fail_node_i, acfg_fail_sel, acfg_index,
-                             acfg_node, acfg_nodes, acfg_nodes_fail_i, acfg_nodes_ok_i, acfg_ref,
-                             acfg_refused_i, acfg_size, acfg_sub, av_addr, bus_off_i,
-                             ctrl_busy_i, eflg_i, emcy_count_i, emcy_data_i, emcy_lost_i,
-                             emcy_node_i, emcy_time_i, err_passive_i, fsm_state_i, init_done_i,
-                             init_fail_i, irq_enable, irq_status, nmt_busy_i, nmt_refused_i,
-                             node_alive_i, node_autostart, node_bootup_i, node_id,
-                             node_lost_i, node_mode, node_rst_loss,
-                             node_toggle_i, omni_en, ovf_refused, rec_i,
-                             sdo_busy_i, sdo_chan,
-                             sdo_chan_busy_i, sdo_cob_req, sdo_cob_resp, sdo_done, sdo_error_i,
-                             sdo_index, sdo_refused_i, sdo_sel, sdo_start_i,
-                             sdo_subindex, sdo_timeout, sync_count_i, sync_en, sync_overflow,
-                             sync_period, sync_window, tec_i, time_us_i, tl_old, tl_sel,
-                             tx_pending_i) is
+                             acfg_fail_entry_i, acfg_fail_node_i, acfg_node, acfg_nodes,
+                             acfg_nodes_fail_i, acfg_nodes_ok_i, acfg_ref, acfg_refused_i,
+                             acfg_size, av_addr, bus_off_i, ctrl_busy_i, eflg_i, emcy_count_i,
+                             emcy_data_i, emcy_lost_i, emcy_node_i, emcy_time_i, err_passive_i,
+                             fsm_state_i, init_done_i, init_fail_i, irq_status, nmt_busy_i,
+                             nmt_refused_i, node_alive_i, node_bootup_i, node_lost_i,
+                             node_toggle_i, omni_en, ovf_refused, rec_i, rw_old, rw_sel,
+                             sdo_busy_i, sdo_chan, sdo_chan_busy_i, sdo_done, sdo_error_i,
+                             sdo_refused_i, sdo_sel, sdo_start_i, sync_count_i, sync_en,
+                             sync_overflow, tec_i, time_us_i, tx_pending_i) is
 
         -- the address and the word being built (put: canopen_util_pkg)
         variable a : std_logic_vector(7 downto 0);
@@ -914,14 +1058,11 @@ begin
             or at(tx_pending_i, STATUS_TX_PENDING_HI_C, STATUS_TX_PENDING_LO_C)
             or at(bus_off_i, STATUS_BUS_OFF_C) or at(err_passive_i, STATUS_ERR_PASSIVE_C));
         put(v, a, REG_IRQ_STATUS_C, at(irq_status, irq_bits_c - 1, 0));
-        put(v, a, REG_IRQ_ENABLE_C, at(irq_enable, irq_bits_c - 1, 0));
         put(v, a, REG_NMT_CMD_C,
             at(nmt_busy_i, NMT_CMD_NMT_BUSY_C) or at(nmt_refused_i, NMT_CMD_REFUSED_C));
-        put(v, a, REG_SYNC_PERIOD_US_C, sync_period);
         put(v, a, REG_SYNC_OVERFLOW_C,
             at(sync_overflow, SYNC_OVERFLOW_VALUE_HI_C, SYNC_OVERFLOW_VALUE_LO_C)
             or at(ovf_refused, SYNC_OVERFLOW_REFUSED_C));
-        put(v, a, REG_SYNC_WINDOW_US_C, sync_window);
         put(v, a, REG_SYNC_COUNT_C, sync_count_i);
         put(v, a, REG_TIME_US_C, time_us_i);
         put(v, a, REG_CAN_STATUS_C,
@@ -933,13 +1074,8 @@ begin
 
         for k in 0 to MAX_NODES - 1 loop
 
-            put(v, a, REG_NODE_CFG_C + k * REG_NODE_STRIDE_C,
-                at(node_id(k), NODE_CFG_NODE_ID_HI_C, NODE_CFG_NODE_ID_LO_C)
-                or at(node_mode(k), NODE_CFG_MODE_HI_C, NODE_CFG_MODE_LO_C)
-                or at(node_autostart(k), NODE_CFG_AUTOSTART_C)
-                or at(node_rst_loss(k), NODE_CFG_RESET_ON_LOSS_C));
-            -- NODE_TIME: the slot's RAM word, below; NMT_STATE and NODE_LAST_MS: the status
-            -- RAM's data, selected after the read
+            -- NODE_CFG, NODE_TIME: the RW word RAM, below; NMT_STATE and NODE_LAST_MS: the
+            -- status RAM's data, selected after the read
             put(v, a, REG_NODE_STATUS_C + k * REG_NODE_STRIDE_C,
                 at(node_alive_i(k), NODE_STATUS_ALIVE_C)
                 or at(node_lost_i(k), NODE_STATUS_LOST_C)
@@ -948,10 +1084,6 @@ begin
 
         end loop;
 
-        if tl_sel = '1' then
-            v(tl_bits_c - 1 downto 0) := v(tl_bits_c - 1 downto 0) or tl_old;
-        end if;
-
         put(v, a, REG_EMCY_STATUS_C,
             at(emcy_count_i, EMCY_STATUS_COUNT_HI_C, EMCY_STATUS_COUNT_LO_C)
             or at(emcy_lost_i, EMCY_STATUS_LOST_C));
@@ -959,18 +1091,10 @@ begin
         put(v, a, REG_EMCY_DATA_LO_C, emcy_data_i(31 downto 0));
         put(v, a, REG_EMCY_DATA_HI_C, emcy_data_i(63 downto 32));
         put(v, a, REG_EMCY_TIME_MS_C, emcy_time_i);
-        put(v, a, REG_SDO_OBJ_C,
-            at(sdo_index, SDO_OBJ_INDEX_HI_C, SDO_OBJ_INDEX_LO_C)
-            or at(sdo_subindex, SDO_OBJ_SUBINDEX_HI_C, SDO_OBJ_SUBINDEX_LO_C));
         put(v, a, REG_SDO_CMD_C,
             at(sdo_busy_i, SDO_CMD_BUSY_C)
             or at(sdo_done(sdo_sel) and not sdo_start_i(sdo_sel), SDO_CMD_DONE_C)
             or at(sdo_error_i, SDO_CMD_ERROR_C) or at(sdo_refused_i, SDO_CMD_REFUSED_C));
-        put(v, a, REG_SDO_TIMEOUT_MS_C,
-            at(sdo_timeout, SDO_TIMEOUT_MS_VALUE_HI_C, SDO_TIMEOUT_MS_VALUE_LO_C));
-        put(v, a, REG_SDO_COB_C,
-            at(sdo_cob_req, SDO_COB_REQUEST_HI_C, SDO_COB_REQUEST_LO_C)
-            or at(sdo_cob_resp, SDO_COB_RESPONSE_HI_C, SDO_COB_RESPONSE_LO_C));
         put(v, a, REG_SDO_SEL_C,
             at(sdo_chan, SDO_SEL_CHAN_HI_C, SDO_SEL_CHAN_LO_C)
             or at(sdo_done and not sdo_start_i, SDO_SEL_DONE_HI_C, SDO_SEL_DONE_LO_C)
@@ -993,11 +1117,11 @@ begin
             or at(acfg_node, ACFG_ENTRY_NODE_HI_C, ACFG_ENTRY_NODE_LO_C)
             or at(acfg_size, ACFG_ENTRY_SIZE_HI_C, ACFG_ENTRY_SIZE_LO_C)
             or at(acfg_ref, ACFG_ENTRY_REFUSED_C));
-        put(v, a, REG_ACFG_OBJ_C,
-            at(acfg_index, ACFG_OBJ_INDEX_HI_C, ACFG_OBJ_INDEX_LO_C)
-            or at(acfg_sub, ACFG_OBJ_SUBINDEX_HI_C, ACFG_OBJ_SUBINDEX_LO_C));
-        put(v, a, REG_ACFG_FAIL_SEL_C,
-            at(acfg_fail_sel, ACFG_FAIL_SEL_INDEX_HI_C, ACFG_FAIL_SEL_INDEX_LO_C));
+
+        -- the RW word RAM's words
+        if rw_sel = '1' then
+            v := v or rw_old;
+        end if;
 
         rd_mux <= v;
 

@@ -449,6 +449,35 @@ class TB:
         if with_input:
             getattr(dut, with_input).value = 0
 
+    async def pin_ops(self, ops: list[tuple]) -> list[int]:
+        """Bus requests in consecutive cycles, pins driven directly: ("w", addr, data,
+        byteenable) or ("r", addr); returns the read data in order."""
+        dut = self.dut
+        got: list[int] = []
+
+        async def collect() -> None:
+            while True:
+                await RisingEdge(dut.clk_i)
+                await ReadOnly()
+                if dut.avs_readdatavalid_o.value == 1:
+                    got.append(int(dut.avs_readdata_o.value))
+
+        mon = cocotb.start_soon(collect())
+        await FallingEdge(dut.clk_i)
+        for op in ops:
+            dut.avs_address_i.value = op[1]
+            dut.avs_read_i.value = int(op[0] == "r")
+            dut.avs_write_i.value = int(op[0] == "w")
+            dut.avs_writedata_i.value = op[2] if op[0] == "w" else 0
+            dut.avs_byteenable_i.value = op[3] if op[0] == "w" else 0
+            await FallingEdge(dut.clk_i)
+        dut.avs_read_i.value = 0
+        dut.avs_write_i.value = 0
+        dut.avs_byteenable_i.value = 0
+        await self.settle()
+        mon.cancel()
+        return got
+
 
 # ============================================================================ tests
 @cocotb.test(timeout_time=2, timeout_unit="ms")
@@ -526,30 +555,8 @@ async def run_node_time_ram_back_to_back(dut):
     if n >= 2:
         ops += [("r", t)]
         expect += [0x00000001]
-    got: list[int] = []
-
-    async def collect() -> None:
-        while True:
-            await RisingEdge(dut.clk_i)
-            await ReadOnly()
-            if dut.avs_readdatavalid_o.value == 1:
-                got.append(int(dut.avs_readdata_o.value))
-
-    mon = cocotb.start_soon(collect())
     c0 = tb.cycle
-    await FallingEdge(dut.clk_i)
-    for op in ops:
-        dut.avs_address_i.value = R.addr("NODE_TIME", op[1])
-        dut.avs_read_i.value = int(op[0] == "r")
-        dut.avs_write_i.value = int(op[0] == "w")
-        dut.avs_writedata_i.value = op[2] if op[0] == "w" else 0
-        dut.avs_byteenable_i.value = op[3] if op[0] == "w" else 0
-        await FallingEdge(dut.clk_i)
-    dut.avs_read_i.value = 0
-    dut.avs_write_i.value = 0
-    dut.avs_byteenable_i.value = 0
-    await tb.settle()
-    mon.cancel()
+    got = await tb.pin_ops([(op[0], R.addr("NODE_TIME", op[1]), *op[2:]) for op in ops])
     assert got == expect, [hex(g) for g in got]
     words = [(f["node_tl_slot_o"], f["node_tl_life_o"] << 16 | f["node_tl_time_o"])
              for _, _, f in tb.pulses_of("node_tl_we_o", c0)]
@@ -561,6 +568,40 @@ async def run_node_time_ram_back_to_back(dut):
     assert await tb.host.read("NODE_TIME", s) == 0x00CDAB56
     assert tb.output_of("NODE_TIME", "LIFE_FACTOR", s) == 0xCD
     assert tb.output_of("NODE_TIME", "TIME_MS", s) == 0xAB56
+
+
+@cocotb.test(timeout_time=1, timeout_unit="ms")
+async def run_rw_ram_back_to_back(dut):
+    """Purpose: the other words of the RW word RAM (fixed RW registers, NODE_CFG) behave like
+    registers with requests in every cycle.
+
+    Verifies: a partial write to a word never written since reset merges with its reset value
+    (SDO_TIMEOUT_MS 1000, not the RAM's undefined power-up word); a partial write in the cycle
+    after a full write to the same word merges with that word (SYNC_PERIOD_US, NODE_CFG), and
+    a read in the next cycle returns it; a write to another word in between leaves a word
+    alone (IRQ_ENABLE around SDO_OBJ); undefined bits read 0; the outputs follow.
+    """
+    tb = TB(dut)
+    await tb.reset()
+    s = tb.max_nodes - 1
+    a = R.addr
+    ops = [("w", a("SDO_TIMEOUT_MS"), 0xFFFF12FF, 0b0010), ("r", a("SDO_TIMEOUT_MS")),
+           ("w", a("SYNC_PERIOD_US"), 0x11223344, 0xF),
+           ("w", a("SYNC_PERIOD_US"), 0xAABBCCDD, 0b1000), ("r", a("SYNC_PERIOD_US")),
+           ("w", a("NODE_CFG", s), 0xFFFFFFFF, 0xF), ("w", a("NODE_CFG", s), 0, 0b0001),
+           ("r", a("NODE_CFG", s)),
+           ("w", a("IRQ_ENABLE"), 0xFFFFFFFF, 0xF), ("w", a("SDO_OBJ"), 0x00AB1234, 0xF),
+           ("r", a("IRQ_ENABLE")), ("r", a("SDO_OBJ"))]
+    got = await tb.pin_ops(ops)
+    cfg = rw_mask("NODE_CFG") & ~0xFF
+    expect = [0x000012E8, 0xAA223344, cfg, rw_mask("IRQ_ENABLE"), 0x00AB1234]
+    assert got == expect, [hex(g) for g in got]
+    assert int(dut.sdo_timeout_ms_o.value) == 0x12E8
+    assert int(dut.sync_period_us_o.value) == 0xAA223344
+    assert tb.output_of("NODE_CFG", "NODE_ID", s) == 0
+    assert tb.output_of("NODE_CFG", "MODE", s) == 3
+    assert tb.output_of("NODE_CFG", "RESET_ON_LOSS", s) == 1
+    assert int(dut.sdo_index_o.value) == 0x1234
 
 
 @cocotb.test(timeout_time=2, timeout_unit="ms")
@@ -1098,7 +1139,7 @@ CONFIGS = {
                             "run_pulses_one_cycle_with_fields", "run_sdo_channel_select",
                             "run_unlisted_addresses_read_zero"]),
     "nodes1_cnt4": (1, 4, 1, ["run_counters_increment_saturate_clear",
-                              "run_node_time_ram_back_to_back",
+                              "run_node_time_ram_back_to_back", "run_rw_ram_back_to_back",
                               "run_rw_reset_values_and_readback", "run_sdo_channel_select",
                               "run_unlisted_addresses_read_zero"]),
 }
@@ -1111,8 +1152,8 @@ def test_canopen_host_regs(request, config):
     run_cocotb(toplevel="canopen_host_regs", module="tb.test_canopen_host_regs",
                name=request.node.name,
                parameters={"MAX_NODES": max_nodes, "CNT_BITS": cnt_bits, "N_SDO": n_sdo},
-               # cocotb-bus's Avalon master drives 'x' on the idle address, which the NODE_TIME
-               # RAM's slot decode reads in every cycle (numeric_std warnings only)
+               # cocotb-bus's Avalon master drives 'x' on the idle address, which the RW word
+               # RAM's address decode reads in every cycle (numeric_std warnings only)
                testcase=tests, ieee_asserts="disable")
 
 
