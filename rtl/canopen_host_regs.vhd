@@ -159,8 +159,8 @@ entity canopen_host_regs is
         node_bootup_i : in    std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: boot-up
         -- node status RAM of canopen_node_monitor: slot to read, its data one cycle later
         node_st_slot_o : out   std_logic_vector(4 downto 0);  -- slot of NODE_STATUS/LAST_MS
-        node_st_nmt_i  : in    std_logic_vector(6 downto 0);  -- its NMT state (+1 cycle)
-        node_st_last_i : in    std_logic_vector(31 downto 0); -- its last message [ms] (+1)
+        node_st_nmt_o  : out   std_logic;                     -- 1: its NMT state, 0: its time
+        node_st_data_i : in    std_logic_vector(31 downto 0); -- state (6..0) or time (+1 cycle)
         -- EMCY FIFO status (head)
         emcy_count_i : in    std_logic_vector(6 downto 0);  -- messages in the FIFO
         emcy_lost_i  : in    std_logic;                     -- sticky: a message was lost
@@ -274,6 +274,10 @@ architecture rtl of canopen_host_regs is
 
         end loop;
 
+        assert NODE_STATUS_NMT_STATE_LO_C = 0 and NODE_STATUS_NMT_STATE_HI_C = 6
+            report "canopen_host_regs: NODE_STATUS.NMT_STATE is not bits 6..0 (the status RAM's "
+                   & "word)"
+            severity failure;
         assert cnt_num_c = 11
             report "canopen_host_regs: CNT_RX_FRAMES .. CNT_EMCY are not 11 consecutive words"
             severity failure;
@@ -540,7 +544,7 @@ architecture rtl of canopen_host_regs is
     signal nlast_sel : std_logic;
     signal rd_nst    : std_logic;
     signal rd_nlast  : std_logic;
-    signal nst_nmt   : std_logic_vector(6 downto 0);
+    signal nst_word  : std_logic_vector(31 downto 0);
     -- SDO result of the selected channel (canopen_sdo_channels' result RAM, registered like
     -- the node status RAM): the address is SDO_CMD / SDO_ABORT, registered: such a read
     signal scmd_sel  : std_logic;
@@ -990,6 +994,7 @@ begin
     -- ---------------------------------------------------------------------------------------------
     nst_off        <= unsigned(av_addr) - REG_NODE_CFG_C;
     node_st_slot_o <= '0' & std_logic_vector(nst_off(5 downto 2));
+    node_st_nmt_o  <= nst_sel;
     nst_sel        <= '1' when nst_off < MAX_NODES * REG_NODE_STRIDE_C
                                and nst_off(1 downto 0) = REG_NODE_STATUS_C - REG_NODE_CFG_C else
                       '0';
@@ -1166,13 +1171,12 @@ begin
 
     end process rd_ctrl_proc;
 
-    avs_readdata_o      <= sdo_buf_rdata_i when rd_buf = '1' else
-                           pdo_rdata_i when rd_pdo = '1' else
-                           std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
-                           node_st_last_i when rd_nlast = '1' else
-                           rd_data or at(nst_nmt, NODE_STATUS_NMT_STATE_HI_C,
-                                            NODE_STATUS_NMT_STATE_LO_C) or sdo_res;
-    nst_nmt             <= node_st_nmt_i when rd_nst = '1' else
+    avs_readdata_o <= sdo_buf_rdata_i when rd_buf = '1' else
+                      pdo_rdata_i when rd_pdo = '1' else
+                      std_logic_vector(resize(unsigned(cnt_rdata), 32)) when rd_cnt = '1' else
+                      rd_data or nst_word or sdo_res;
+    -- the status RAM's word: NODE_LAST_MS, or NODE_STATUS.NMT_STATE in bits 6..0 (zeros above)
+    nst_word            <= node_st_data_i when rd_nst = '1' or rd_nlast = '1' else
                            (others => '0');
     sdo_res             <= at(sdo_size_i, SDO_CMD_XFER_SIZE_HI_C, SDO_CMD_XFER_SIZE_LO_C)
                            or at(sdo_abort_sent_i, SDO_CMD_ABORT_SENT_C) when rd_scmd = '1' else

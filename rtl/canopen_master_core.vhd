@@ -343,10 +343,11 @@ architecture rtl of canopen_master_core is
     -- its NMT start waits in canopen_tx_path (apart from the host's NMT command)
     signal acfg_nmt_pending : std_logic;
 
-    -- node status RAM of the monitor, read by the host registers: slot, NMT state, last time
+    -- node status RAM of the monitor, read by the host registers: slot, which word (NMT state or
+    -- last time), the word
     signal node_st_slot     : std_logic_vector(4 downto 0);
-    signal node_st_nmt      : std_logic_vector(6 downto 0);
-    signal node_st_last     : std_logic_vector(31 downto 0);
+    signal node_st_nmt      : std_logic;
+    signal node_st_data     : std_logic_vector(31 downto 0);
     signal st_alive         : std_logic_vector(MAX_NODES - 1 downto 0);
     signal st_lost          : std_logic_vector(MAX_NODES - 1 downto 0);
     signal st_toggle        : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -949,8 +950,8 @@ begin
             st_toggle_o         => st_toggle,
             st_bootup_o         => st_bootup,
             st_rd_slot_i        => node_st_slot,
-            st_rd_nmt_o         => node_st_nmt,
-            st_rd_last_o        => node_st_last,
+            st_rd_nmt_i         => node_st_nmt,
+            st_rd_data_o        => node_st_data,
             st_clear_i          => node_clear,
             ev_lost_o           => ev_lost,
             ev_toggle_o         => ev_toggle,
@@ -1290,8 +1291,8 @@ begin
             node_toggle_i            => st_toggle,
             node_bootup_i            => st_bootup,
             node_st_slot_o           => node_st_slot,
-            node_st_nmt_i            => node_st_nmt,
-            node_st_last_i           => node_st_last,
+            node_st_nmt_o            => node_st_nmt,
+            node_st_data_i           => node_st_data,
             emcy_count_i             => emcy_count,
             emcy_lost_i              => emcy_lost,
             emcy_node_i              => emcy_node_h,

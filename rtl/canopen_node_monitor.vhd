@@ -73,10 +73,10 @@ entity canopen_node_monitor is
         st_toggle_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: toggle error
         st_bootup_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- sticky: boot-up seen
         st_clear_i  : in    std_logic_vector(MAX_NODES - 1 downto 0); -- clear sticky bits
-        -- status RAM read port (last NMT state and time of a slot, registered: +1 cycle)
+        -- status RAM read port (last NMT state or time of a slot, registered: +1 cycle)
         st_rd_slot_i : in    std_logic_vector(4 downto 0);  -- slot to read
-        st_rd_nmt_o  : out   std_logic_vector(6 downto 0);  -- its last NMT state
-        st_rd_last_o : out   std_logic_vector(31 downto 0); -- its time last heard [ms]
+        st_rd_nmt_i  : in    std_logic;                     -- 1: its NMT state, 0: its time
+        st_rd_data_o : out   std_logic_vector(31 downto 0); -- state in 6..0, or time [ms]
         -- event strobes
         ev_lost_o   : out   std_logic_vector(MAX_NODES - 1 downto 0); -- strobe: loss
         ev_toggle_o : out   std_logic_vector(MAX_NODES - 1 downto 0); -- strobe: toggle error
@@ -259,20 +259,31 @@ architecture rtl of canopen_node_monitor is
     signal vis_due_first : std_logic;
     signal vis_rtr_now   : std_logic;
 
-    -- per-slot status; the last NMT state and time of each slot are a word in the status RAM
-    -- ({state, time}, written when a frame of the slot is heard), heard_q marks the slots
-    -- written since reset (the others read 0)
-    signal alive_q  : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal heard_q  : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal st_we    : std_logic;
-    signal st_wdata : std_logic_vector(38 downto 0);
-    signal st_raddr : slot_t;
-    signal st_rdata : std_logic_vector(38 downto 0);
-    signal st_rd_ok : std_logic;
-    signal st_rd_in : std_logic;
-    signal lost_q   : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal toggle_q : std_logic_vector(MAX_NODES - 1 downto 0);
-    signal bootup_q : std_logic_vector(MAX_NODES - 1 downto 0);
+    -- per-slot status; the time and the last NMT state of each slot are two words of the
+    -- status RAM (2k: time, 2k + 1: state; written when a frame of the slot is heard, the
+    -- state in the cycle after the time), heard_q marks the slots written since reset (the
+    -- others read 0); st_nw_* hold the state word's write, st_fwd_* its forward to a read of it
+    -- at the edge of that write
+    signal alive_q    : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal heard_q    : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal st_we      : std_logic;
+    signal st_nw      : std_logic;
+    signal st_nw_slot : slot_t;
+    signal st_nw_val  : std_logic_vector(6 downto 0);
+    signal st_ram_we  : std_logic;
+    signal st_waddr   : natural range 0 to 2 * MAX_NODES - 1;
+    signal st_wdata   : std_logic_vector(31 downto 0);
+    signal st_raddr   : natural range 0 to 2 * MAX_NODES - 1;
+    signal st_rslot   : slot_t;
+    signal st_rdata   : std_logic_vector(31 downto 0);
+    signal st_rd_ok   : std_logic;
+    signal st_rd_in   : std_logic;
+    signal st_nmt_q   : std_logic;
+    signal st_fwd     : std_logic;
+    signal st_fwd_val : std_logic_vector(6 downto 0);
+    signal lost_q     : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal toggle_q   : std_logic_vector(MAX_NODES - 1 downto 0);
+    signal bootup_q   : std_logic_vector(MAX_NODES - 1 downto 0);
     -- per-slot engine flags: slot word written since reset, a tick not yet applied to the slot
     -- word, loss / RTR due at the next tick (from the last visit), an RTR went out unanswered
     signal valid_q     : std_logic_vector(MAX_NODES - 1 downto 0);
@@ -1249,65 +1260,120 @@ begin
     emcy_time_o  <= emcy_q(31 downto 0);
 
     -- ---------------------------------------------------------------------------------------------
-    -- Status RAM: {last NMT state, time last heard} per slot, written by the visit of a heard
-    -- frame, read by the host (canopen_host_regs) through st_rd_slot_i, data one cycle later
-    -- (a read in the cycle of the write returns the word before it)
+    -- Status RAM: time last heard (word 2k) and last NMT state (word 2k + 1, bits 6..0) per slot,
+    -- written by the visit of a heard frame (the time) and in the next cycle (the state), read by
+    -- the host (canopen_host_regs) through st_rd_slot_i / st_rd_nmt_i, data one cycle later. A
+    -- read at the edge of a write returns the word before it, except the state word at the edge
+    -- of its write, which is forwarded (the slot already counts as heard then). One RAM of
+    -- 2 * MAX_NODES words: the 7-bit state alone is too small for a block RAM (yosys keeps it in
+    -- logic), a {state, time} word too wide for one.
     -- ---------------------------------------------------------------------------------------------
-    st_we    <= visit and vis_heard;
-    st_wdata <= rx_state_byte & rx_time_q;
+    st_we <= visit and vis_heard;
+
+    st_nw_proc : process (clk_i, rst_n_i) is
+    begin
+
+        if rst_n_i = '0' then
+            st_nw <= '0';
+        elsif rising_edge(clk_i) then
+            st_nw <= st_we;
+        end if;
+
+    end process st_nw_proc;
+
+    -- datapath, qualified by st_nw (no reset)
+    st_nw_data_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            if st_we = '1' then
+                st_nw_slot <= eng_slot;
+                st_nw_val  <= rx_state_byte;
+            end if;
+        end if;
+
+    end process st_nw_data_proc;
+
+    -- the state word's bits 31..7 take the time's (never read: the host takes bits 6..0)
+    st_ram_we <= st_we or st_nw;
+    st_waddr  <= 2 * eng_slot when st_we = '1' else
+                 2 * st_nw_slot + 1;
+    st_wdata  <= rx_time_q(31 downto 7) & rx_time_q(6 downto 0) when st_we = '1' else
+                 rx_time_q(31 downto 7) & st_nw_val;
+
     st_rd_in <= '1' when unsigned(st_rd_slot_i) < MAX_NODES else
                 '0';
-    st_raddr <= to_integer(unsigned(st_rd_slot_i)) when st_rd_in = '1' else
+    st_rslot <= to_integer(unsigned(st_rd_slot_i)) when st_rd_in = '1' else
                 0;
+    st_raddr <= 2 * st_rslot + bit_int(st_rd_nmt_i);
 
-    -- two RAMs: a 39-bit word would need two M9K and yosys leaves it in logic; the 32-bit time
-    -- fills one M9K, the 7-bit state another
-    st_last_ram_inst : entity work.canopen_sdp_ram
+    st_ram_inst : entity work.canopen_sdp_ram
         generic map (
-            DEPTH => MAX_NODES,
+            DEPTH => 2 * MAX_NODES,
             WIDTH => 32
         )
         port map (
             clk_i   => clk_i,
-            we_i    => st_we,
-            waddr_i => eng_slot,
-            wdata_i => st_wdata(31 downto 0),
+            we_i    => st_ram_we,
+            waddr_i => st_waddr,
+            wdata_i => st_wdata,
             re_i    => one,
             raddr_i => st_raddr,
-            rdata_o => st_rdata(31 downto 0)
+            rdata_o => st_rdata
         );
 
-    st_nmt_ram_inst : entity work.canopen_sdp_ram
-        generic map (
-            DEPTH => MAX_NODES,
-            WIDTH => 7
-        )
-        port map (
-            clk_i   => clk_i,
-            we_i    => st_we,
-            waddr_i => eng_slot,
-            wdata_i => st_wdata(38 downto 32),
-            re_i    => one,
-            raddr_i => st_raddr,
-            rdata_o => st_rdata(38 downto 32)
-        );
-
-    -- the slot was heard since reset (sampled with the RAM read: before a write at that edge)
+    -- the slot was heard since reset (sampled with the RAM read: before a write at that edge);
+    -- the word read; the state word being written at the read's edge
     st_ok_proc : process (clk_i, rst_n_i) is
     begin
 
         if rst_n_i = '0' then
             st_rd_ok <= '0';
+            st_nmt_q <= '0';
+            st_fwd   <= '0';
         elsif rising_edge(clk_i) then
-            st_rd_ok <= st_rd_in and heard_q(st_raddr);
+            st_rd_ok <= st_rd_in and heard_q(st_rslot);
+            st_nmt_q <= st_rd_nmt_i;
+            if st_nw = '1' and st_nw_slot = st_rslot and st_rd_nmt_i = '1' then
+                st_fwd <= '1';
+            else
+                st_fwd <= '0';
+            end if;
         end if;
 
     end process st_ok_proc;
 
-    st_rd_nmt_o  <= st_rdata(38 downto 32) when st_rd_ok = '1' else
+    -- datapath, qualified by st_fwd (no reset)
+    st_fwd_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            st_fwd_val <= st_nw_val;
+        end if;
+
+    end process st_fwd_proc;
+
+    st_rd_data_o <= (31 downto 7 => '0') & st_fwd_val when st_rd_ok = '1' and st_fwd = '1' else
+                    (31 downto 7 => '0') & st_rdata(6 downto 0) when st_rd_ok = '1'
+                                                                     and st_nmt_q = '1' else
+                    st_rdata when st_rd_ok = '1' else
                     (others => '0');
-    st_rd_last_o <= st_rdata(31 downto 0) when st_rd_ok = '1' else
-                    (others => '0');
+
+    -- simulation only: the state word's write never meets the next heard visit (a received
+    -- frame is applied at most once in many cycles: the FSM dispatches one frame at a time)
+    -- pragma translate_off
+    st_nw_check_proc : process (clk_i) is
+    begin
+
+        if rising_edge(clk_i) then
+            assert not (st_we = '1' and st_nw = '1')
+                report "canopen_node_monitor: a heard visit in the cycle after another"
+                severity failure;
+        end if;
+
+    end process st_nw_check_proc;
+
+    -- pragma translate_on
 
     st_alive_o  <= alive_q;
     st_lost_o   <= lost_q;

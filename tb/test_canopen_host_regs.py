@@ -50,9 +50,11 @@ STATUS_INPUTS = {
 }
 SLOT_INPUTS = {"node_nmt_i": 7, "node_alive_i": 1, "node_lost_i": 1, "node_toggle_i": 1,
                "node_bootup_i": 1, "node_last_i": 32}
-#: slot values the block reads through the node monitor's status RAM port (node_st_slot_o ->
-#: node_st_nmt_i / node_st_last_i one cycle later), held flat by the bench's model of that port
-RAM_SLOT_INPUTS = {"node_nmt_i": "node_st_nmt_i", "node_last_i": "node_st_last_i"}
+#: slot values the block reads through the node monitor's status RAM port (node_st_slot_o and
+#: node_st_nmt_o -> node_st_data_i one cycle later: the NMT state zero-extended for
+#: node_st_nmt_o = 1, else the time), held flat by the bench's model of that port; the value
+#: is the word select that returns it
+RAM_SLOT_INPUTS = {"node_nmt_i": 1, "node_last_i": 0}
 EVENTS = {"NODE": "ev_node_i", "EMCY": "ev_emcy_i", "SDO_DONE": "ev_sdo_done_i",
           "CAN_ERROR": "ev_can_error_i", "SYNC": "ev_sync_i", "FRAME_ERROR": "ev_frame_error_i",
           "INIT": "ev_init_i", "CONFIG": "ev_acfg_done_i"}
@@ -178,7 +180,7 @@ class TB:
                      "avs_address_i", "sdo_buf_rdata_i", "pdo_rdata_i", "sdo_start_i",
                      *STATUS_INPUTS,
                      *(n for n in SLOT_INPUTS if n not in RAM_SLOT_INPUTS),
-                     *RAM_SLOT_INPUTS.values(),
+                     "node_st_data_i",
                      *EVENTS.values(), *COUNT_INPUTS.values()):
             getattr(dut, name).value = 0
         self.host = CanopenMasterHost(dut, dut.clk_i, max_polls=200, poll_cycles=4)
@@ -260,14 +262,15 @@ class TB:
         while True:
             await RisingEdge(dut.clk_i)
             slot = dut.node_st_slot_o.value
-            if not slot.is_resolvable:
+            sel = dut.node_st_nmt_o.value
+            if not (slot.is_resolvable and sel.is_resolvable):
                 continue
             k = int(slot)
-            for name, port in RAM_SLOT_INPUTS.items():
-                w = SLOT_INPUTS[name]
-                flat = self.node_ram[name] if k < self.max_nodes else 0
-                word = (flat >> (w * k)) & ((1 << w) - 1)
-                getattr(dut, port).value = word
+            for name, want in RAM_SLOT_INPUTS.items():
+                if int(sel) == want:
+                    w = SLOT_INPUTS[name]
+                    flat = self.node_ram[name] if k < self.max_nodes else 0
+                    dut.node_st_data_i.value = (flat >> (w * k)) & ((1 << w) - 1)
 
     def set_input(self, name: str, value: int) -> None:
         """Drive a status input (or the status RAM model's flat value)."""

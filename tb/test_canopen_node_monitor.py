@@ -127,7 +127,8 @@ class TB:
         self.events = self.strobes.events
         for sig in (dut.tick_ms_i, dut.time_ms_i, dut.st_clear_i, dut.emcy_clear_i,
                     dut.emcy_pop_i, dut.tx_ack_i, dut.rx_valid_i, dut.rx_id_i, dut.rx_rtr_i,
-                    dut.rx_dlc_i, dut.rx_data_i, dut.st_rd_slot_i, dut.cfg_tl_we_i,
+                    dut.rx_dlc_i, dut.rx_data_i, dut.st_rd_slot_i, dut.st_rd_nmt_i,
+                    dut.cfg_tl_we_i,
                     dut.cfg_tl_slot_i, dut.cfg_tl_time_i, dut.cfg_tl_life_i, dut.cfg_tl_ok_i):
             sig.value = 0
         #: (time, life) of each slot as written into the DUT's time RAM since reset (the host
@@ -307,13 +308,29 @@ class TB:
 
     async def st_read(self, slot: int, field: str) -> int:
         """A read of the status RAM port (``field`` "nmt" or "last") as the host registers do:
-        slot on ``st_rd_slot_i``, the registered data one cycle later. Ends at a falling edge."""
+        slot on ``st_rd_slot_i``, the word on ``st_rd_nmt_i``, the registered data one cycle
+        later. Ends at a falling edge."""
         dut = self.dut
         await FallingEdge(dut.clk_i)
         dut.st_rd_slot_i.value = slot
+        dut.st_rd_nmt_i.value = int(field == "nmt")
         await RisingEdge(dut.clk_i)
         await FallingEdge(dut.clk_i)
-        return int((dut.st_rd_nmt_o if field == "nmt" else dut.st_rd_last_o).value)
+        return int(dut.st_rd_data_o.value)
+
+    async def st_watch(self, slot: int, out: list[int]) -> None:
+        """The status RAM port held on the NMT state of ``slot``: every cycle's read data into
+        ``out`` (a word that is not 0/1 in every bit fails at once)."""
+        dut = self.dut
+        await FallingEdge(dut.clk_i)
+        dut.st_rd_slot_i.value = slot
+        dut.st_rd_nmt_i.value = 1
+        await RisingEdge(dut.clk_i)
+        while True:
+            await FallingEdge(dut.clk_i)
+            v = dut.st_rd_data_o.value
+            assert v.is_resolvable, f"st_rd_data_o = {v} reading slot {slot}'s NMT state"
+            out.append(int(v))
 
     # ------------------------------------------------------------------ actions
     async def wait_ms(self, ms: float) -> None:
@@ -391,6 +408,9 @@ async def run_bootup_autostart(dut):
     [01h, node] goes on the bus, so those slaves become operational, the slot without autostart
     stays pre-operational; heartbeats then report 05h / 7Fh and the reception time in st_last;
     st_clear clears the sticky bit; rx_done_o comes 2 cycles after rx_valid_i (5 with a reply).
+    The port held on one slot's NMT state in every cycle (the state word is written one cycle
+    after the time word and forwarded to a read at its write edge) reads only 00h through the
+    boot-up and then 00h before 05h, never an undefined word.
     """
     tb = TB(dut)
     for node in NODES:
@@ -399,8 +419,12 @@ async def run_bootup_autostart(dut):
     # the status RAM has no reset: a slot not heard since reset reads 0 (never a stale word)
     for k in range(tb.n):
         assert await tb.st_read(k, "nmt") == 0 and await tb.st_read(k, "last") == 0
+    watched: list[int] = []
+    watch = cocotb.start_soon(tb.st_watch(tb.slot_of[1], watched))
     await tb.start()
     await tb.wait_ms(BOOT_MS + 1.5)
+    watch.cancel()
+    assert watched and set(watched) == {0}
     for node in NODES:
         k = tb.slot_of[node]
         assert len(tb.ev("ev_bootup", k)) == 1
@@ -414,7 +438,12 @@ async def run_bootup_autostart(dut):
         assert tb.slaves[node].nmt_state is NmtState.OPERATIONAL
     for s in tb.slaves.values():
         tb.model(s.write, 0x1017, 0, 5)
+    watched = []
+    watch = cocotb.start_soon(tb.st_watch(tb.slot_of[1], watched))
     await tb.wait_ms(12)
+    watch.cancel()
+    first = watched.index(0x05)
+    assert set(watched[:first]) == {0} and set(watched[first:]) == {0x05}, sorted(set(watched))
     for node in NODES:
         k = tb.slot_of[node]
         last = tb.rx_from(node)[-1]
