@@ -455,12 +455,14 @@ architecture rtl of canopen_pdo_engine is
     signal txb_sync : std_logic;
     -- tx_cancelled_i for a synchronous TPDO: a late event for channel txb_k
     signal tx_cancel_late : std_logic;
-    -- frame registers
-    signal tx_req  : std_logic;
-    signal tx_id   : std_logic_vector(10 downto 0);
-    signal tx_rtr  : std_logic;
-    signal tx_dlc  : std_logic_vector(3 downto 0);
-    signal tx_data : std_logic_vector(63 downto 0);
+    -- frame registers; the data are the TPDO data RAM's output register, held from the frame
+    -- read on (ta_re = 0), masked by the DLC and tx_dok (a TPDO whose bank holds data)
+    signal tx_req : std_logic;
+    signal tx_id  : std_logic_vector(10 downto 0);
+    signal tx_rtr : std_logic;
+    signal tx_dlc : std_logic_vector(3 downto 0);
+    signal tx_dok : std_logic;
+    signal ta_re  : std_logic;
     -- 100 us prescaler of tick_us_i and its strobe
     signal pre_us  : natural range 0 to inhibit_unit_us_c - 1;
     signal tick100 : std_logic;
@@ -1174,7 +1176,7 @@ begin
             we_i    => t_we,
             waddr_i => t_wa,
             wdata_i => t_wd,
-            re_i    => '1',
+            re_i    => ta_re,
             raddr_i => ta_ra,
             rdata_o => ta_q
         );
@@ -1459,19 +1461,21 @@ begin
                 tx_dlc <= ca_q(cw_dlc_hi_c downto cw_dlc_lo_c);
                 if txi < N_TPDO then
                     tx_rtr <= '0';
-                    if ok_v = '1' then
-                        tx_data <= keep_bytes(ta_q, ca_q(cw_dlc_hi_c downto cw_dlc_lo_c));
-                    else
-                        tx_data <= (others => '0');
-                    end if;
+                    tx_dok <= ok_v;
                 else
-                    tx_rtr  <= '1';
-                    tx_data <= (others => '0');
+                    tx_rtr <= '1';
+                    tx_dok <= '0';
                 end if;
             end if;
         end if;
 
     end process tx_frame_proc;
+
+    -- the data RAM reads the frame's bank while the transmitter waits for the engine; from the
+    -- frame read (the cycle whose RAM word the old frame register took) the output register
+    -- holds it until the next frame
+    ta_re <= '1' when tx_st = S_READ and not (e_st = E_EXEC and e_op = OP_TXRD) else
+             '0';
 
     -- ---------------------------------------------------------------------------------------------
     -- Receiver: frame registered, matched by the engine, answered
@@ -1948,7 +1952,8 @@ begin
     tx_id_o         <= tx_id;
     tx_rtr_o        <= tx_rtr;
     tx_dlc_o        <= tx_dlc;
-    tx_data_o       <= tx_data;
+    tx_data_o       <= keep_bytes(ta_q, tx_dlc) when tx_dok = '1' else
+                       (others => '0');
     ev_rx_o         <= ev_rx_q;
     ev_len_err_o    <= ev_len_q;
     ev_missed_o     <= ev_miss_q;
