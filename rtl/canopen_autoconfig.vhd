@@ -94,7 +94,8 @@ architecture rtl of canopen_autoconfig is
         S_NMT     -- request NMT start of the node just configured
     );
 
-    -- table RAM (synchronous read, one clocked process, no reset: an M9K)
+    -- table RAM (synchronous read, one clocked process, no reset: an M9K); its output register
+    -- reads only in S_FETCH and holds the entry being run (no copy of it) until the next fetch
     signal table    : table_t;
     signal rd_addr  : natural range 0 to CFG_DEPTH - 1;
     signal rd_entry : std_logic_vector(entry_w_c - 1 downto 0);
@@ -109,7 +110,6 @@ architecture rtl of canopen_autoconfig is
     -- walk
     signal state : state_t;
     signal idx   : natural range 0 to CFG_DEPTH;
-    signal cur   : std_logic_vector(entry_w_c - 1 downto 0);
     -- node whose entries are being run, and whether it already failed (skip the rest)
     signal cur_node  : std_logic_vector(6 downto 0);
     signal node_fail : std_logic;
@@ -136,7 +136,9 @@ begin
                 table(to_integer(unsigned(tbl_addr_i))) <= tbl_node_i & tbl_size_i & tbl_index_i
                                                            & tbl_sub_i & tbl_value_i;
             end if;
-            rd_entry <= table(rd_addr);
+            if state = S_FETCH then
+                rd_entry <= table(rd_addr);
+            end if;
         end if;
 
     end process table_proc;
@@ -237,7 +239,6 @@ begin
 
                 when S_DECODE =>
 
-                    cur <= rd_entry;
                     if idx = CFG_DEPTH or e_node(rd_entry) = "0000000" then
                         -- end of the table: close the last node, then report
                         node_finished(true);
@@ -307,11 +308,11 @@ begin
     busy_o          <= '0' when state = S_IDLE else '1';
     nodes_ok_o      <= std_logic_vector(n_ok);
     nodes_fail_o    <= std_logic_vector(n_fail);
-    sdo_node_o      <= e_node(cur);
-    sdo_size_o      <= "00000000" & cur(58 downto 56);
-    sdo_index_o     <= cur(55 downto 40);
-    sdo_sub_o       <= cur(39 downto 32);
-    sdo_buf_wdata_o <= cur(31 downto 0);
+    sdo_node_o      <= e_node(rd_entry);
+    sdo_size_o      <= "00000000" & rd_entry(58 downto 56);
+    sdo_index_o     <= rd_entry(55 downto 40);
+    sdo_sub_o       <= rd_entry(39 downto 32);
+    sdo_buf_wdata_o <= rd_entry(31 downto 0);
     nmt_node_o      <= cur_node;
     -- failure log_sel_i of the last run, 0 when the run had fewer failures
     fail_node_o  <= log_rdata(46 downto 40) when log_valid = '1' else

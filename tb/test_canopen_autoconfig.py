@@ -188,6 +188,59 @@ async def run_configure_and_start(dut):
 
 
 @cocotb.test(timeout_time=50, timeout_unit="ms")
+async def run_entry_held_while_downloading(dut):
+    """Purpose: the entry being run does not change when the host rewrites its table row.
+
+    Verifies: for every download, the table row being run is overwritten (another node, index,
+    sub-index, size and value) right after sdo_req_o; sdo_node/index/sub/size and the buffer
+    word stay the requested entry until sdo_done_i (the table RAM's output register holds the
+    entry; it is not read again before the next fetch), and the run downloads the original
+    entries in order.
+    """
+    tb = TB(dut)
+    await reset_active_low(dut.clk_i, dut.rst_n_i)
+    table = network_table(random.Random(7), [5, 6])
+    await tb.write_table(table)
+    fields = (dut.sdo_node_o, dut.sdo_index_o, dut.sdo_sub_o, dut.sdo_size_o,
+              dut.sdo_buf_wdata_o)
+
+    async def client() -> None:
+        row = 0
+        while True:
+            await RisingEdge(dut.clk_i)
+            await ReadOnly()
+            if dut.sdo_req_o.value != 1:
+                continue
+            held = [int(f.value) for f in fields]
+            tb.downloads.append(Entry(*held[:4], held[4]))
+            await FallingEdge(dut.clk_i)
+            dut.tbl_addr_i.value = row
+            dut.tbl_node_i.value = 0x7F
+            dut.tbl_index_i.value = 0xFFFF
+            dut.tbl_sub_i.value = 0xFF
+            dut.tbl_size_i.value = 7
+            dut.tbl_value_i.value = 0xFFFFFFFF
+            dut.tbl_we_i.value = 1
+            await FallingEdge(dut.clk_i)
+            dut.tbl_we_i.value = 0
+            for _ in range(5):
+                await RisingEdge(dut.clk_i)
+                await ReadOnly()
+                assert [int(f.value) for f in fields] == held, f"entry {row} changed"
+            await FallingEdge(dut.clk_i)
+            dut.sdo_done_i.value = 1
+            await FallingEdge(dut.clk_i)
+            dut.sdo_done_i.value = 0
+            row += 1
+
+    cocotb.start_soon(client())
+    cocotb.start_soon(tb.nmt_path())
+    await tb.run(start_nodes=True)
+    tb.table = table
+    await tb.check(start_nodes=True)
+
+
+@cocotb.test(timeout_time=50, timeout_unit="ms")
 async def run_failing_entry_stops_its_node(dut):
     """Purpose: a failing entry stops that node only.
 
