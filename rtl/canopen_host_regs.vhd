@@ -22,15 +22,19 @@
 --     where they are executed (canopen_master_core, canopen_sdo_channels).
 --   * Avalon inputs: address, read, write, writedata and byteenable are registered at the
 --     port (av_*); everything below works on the registered request, one cycle after the bus
---     cycle (writes act then, in order with the reads). The address also goes to the
---     NODE_TIME RAM's address register (sampled at the same edge), see below.
+--     cycle (writes act then, in order with the reads). Address bits 6..0 also go to the RW
+--     word RAM's address register (sampled at the same edge), see below.
 --   * Reads: the whole read multiplexer is registered, so readdata/readdatavalid follow
 --     avs_read_i by exactly two cycles for every address. SDO_BUF reads drive sdo_buf_addr_o
 --     in the registered read cycle; the RAM's registered data (sdo_buf_rdata_i) is selected in
 --     the next one. PDO_WIN reads likewise: pdo_addr_o, then pdo_rdata_i selected.
---   * NODE_TIME(k) is a word of a RAM (node_tl_*: passed on to the node monitor's copy);
---     the slot's old word (the previous cycle's write to it, the RAM's word, or 0 for a slot
---     not written since reset) is read in the act cycle and merged with a partial write.
+--   * RW word RAM: the RW registers without side effects or checks (IRQ_ENABLE, SYNC period
+--     and window, SDO object / timeout / COB-IDs, ACFG_OBJ, ACFG_FAIL_SEL, NODE_CFG(k),
+--     NODE_TIME(k)) are read back from one RAM, not through the read multiplexer: the word's
+--     old value (the previous cycle's write to it, the RAM's word, or the reset value for a
+--     word not written since reset) is read in the act cycle and merged with a partial write.
+--     Their flip-flops stay where a block uses the value; NODE_TIME(k) exists only in RAMs
+--     (node_tl_*: passed on to the node monitor's copy one cycle after the act cycle).
 --   * RW registers merge a partial write with their own value (per bit: the byte enable
 --     chooses, which synthesis maps to the flip-flop enable), not with the read multiplexer.
 --   * Byte enables: honoured by RW registers (only enabled bytes change) and by W1C/pulse bits
