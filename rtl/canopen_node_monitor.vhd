@@ -1294,11 +1294,12 @@ begin
 
     end process st_nw_data_proc;
 
-    -- the state word's bits 31..7 take the time's (never read: the host takes bits 6..0)
+    -- the state word's bits 31..7 take the time's bits (no multiplexer for them; a read of the
+    -- state word zero-extends bits 6..0)
     st_ram_we <= st_we or st_nw;
     st_waddr  <= 2 * eng_slot when st_we = '1' else
                  2 * st_nw_slot + 1;
-    st_wdata  <= rx_time_q(31 downto 7) & rx_time_q(6 downto 0) when st_we = '1' else
+    st_wdata  <= rx_time_q when st_we = '1' else
                  rx_time_q(31 downto 7) & st_nw_val;
 
     st_rd_in <= '1' when unsigned(st_rd_slot_i) < MAX_NODES else
