@@ -27,17 +27,19 @@ from tb.tblib.clkrst import start_clock
 TOPLEVEL = "canopen_sdp_ram"
 
 
-@cocotb.test(timeout_time=2, timeout_unit="sec")
+@cocotb.test(timeout_time=200, timeout_unit="sec")
 async def run_long_simulation(dut):
     """Purpose: a simulation that runs for many seconds of wall time unless it is stopped.
 
-    Verifies: the clock runs for 1 s of simulated time (20 M cycles); the pytest side
-    interrupts it long before.
+    Verifies: the clock runs for 100 s of simulated time (2 G cycles, minutes of wall time);
+    the pytest side interrupts it long before. (With 1 s, an orphaned simulation of the stock
+    runner could finish within the test's 5 s wait on a fast machine, and the check that it
+    is left running failed now and then.)
     """
     start_clock(dut.clk_i, 20_000_000)
     dut.we_i.value = 0
     dut.re_i.value = 0
-    await Timer(1, "sec")
+    await Timer(100, "sec")
     assert dut.we_i.value == 0
 
 
@@ -92,7 +94,7 @@ def test_interrupted_simulation_leaves_no_process(request, monkeypatch, flavour)
     try:
         with pytest.raises(Interrupted):
             runner.run_cocotb(toplevel=TOPLEVEL, module="tb.test_runner_cleanup",
-                              name=request.node.name, stop_time_ms=1500.0)
+                              name=request.node.name, stop_time_ms=150_000.0)
     finally:
         done.set()
         watcher.join()
